@@ -1,0 +1,69 @@
+"""The ``clutch`` command: import, replay and the simulated-rig demo.
+
+Every subcommand prints a clear one-line error and exits non-zero on bad input (never a
+traceback; set ``CLUTCH_DEBUG=1`` to see one). ``--json`` prints machine-readable results on
+stdout; progress and human text go to stderr.
+
+Exit codes: 0 success, 1 the job ran but failed its check, 2 bad input or usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+from clutch_ros.errors import ClutchError
+
+__all__ = ["main", "build_parser"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser of ``clutch`` with all subcommands."""
+    from clutch_ros.cli import demo, import_cmd, replay
+
+    parser = argparse.ArgumentParser(
+        prog="clutch",
+        description="Wet lamella clutch torque estimation: import rig data, replay bags "
+                    "through the model, run the simulated rig end to end.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for module in (import_cmd, replay, demo):
+        module.add_parser(sub)
+    return parser
+
+
+def emit_json(obj) -> None:
+    """Print ``obj`` as JSON on stdout (NaN written as null)."""
+    sys.stdout.write(json.dumps(_clean(obj), indent=2) + "\n")
+
+
+def _clean(obj):
+    if isinstance(obj, float):
+        return obj if obj == obj and obj not in (float("inf"), float("-inf")) else None
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    return obj
+
+
+def main(argv=None) -> int:
+    """Run ``clutch`` with ``argv`` (default: sys.argv[1:]); return the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ClutchError as err:
+        if os.environ.get("CLUTCH_DEBUG"):
+            raise
+        sys.stderr.write(f"clutch {args.command}: error: {err}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write(f"clutch {args.command}: interrupted\n")
+        return 130
+    except OSError as err:
+        if os.environ.get("CLUTCH_DEBUG"):
+            raise
+        sys.stderr.write(f"clutch {args.command}: error: {err}\n")
+        return 2

@@ -1,0 +1,7 @@
+"""``python -m clutch_ros.cli`` runs the ``clutch`` command."""
+
+import sys
+
+from clutch_ros.cli import main
+
+sys.exit(main())

@@ -1,0 +1,161 @@
+"""The ``estimator`` node: RigState in, ClutchEstimate out, one per accepted sample.
+
+Runs the model core's :class:`clutch_ros.model.ClutchEstimator` (lamella pack + spline-friction
+law) on every ``rig_state`` sample, using the message stamps for time (never wall time), so a
+bag replayed at any speed gives the same estimates. Samples that are NaN/inf, out of order,
+duplicated or older than ``estimator.max_sample_age`` are skipped, counted and reported on
+``/diagnostics``; a NaN torque is never published. Model parameters are the DESIGN.md keys
+(``clutch.*``, ``friction.*``, ``spline.*``, ``slip.*``); runtime changes are validated by the
+model and rejected with its reason, and applied without losing the pack state.
+"""
+
+from __future__ import annotations
+
+import math
+
+from rclpy.node import Node
+from rcl_interfaces.msg import SetParametersResult
+
+from clutch_ros.nodes.common import (
+    Diagnostics,
+    ParamSpec,
+    declare_params,
+    reliable_qos,
+    run_node,
+    sensor_qos,
+    stamp_to_sec,
+)
+from clutch_ros.nodes.convert import estimate_to_msg
+from clutch_ros.nodes.model_params import declare_model_params, model_param_specs
+from clutch_ros.nodes.presets import DEFAULT_ESTIMATOR_PRESET
+
+NAME = "estimator"
+PARAMS = [
+    ParamSpec("estimator.max_sample_age", 0.5, "skip samples whose stamp is older than this "
+              "relative to the node clock; 0 disables the check", "s", 0.0, 3600.0),
+    ParamSpec("estimator.input_timeout", 0.5, "no input for longer than this is reported as "
+              "stale on /diagnostics", "s", 0.001, 3600.0),
+    ParamSpec("estimator.max_gap", 1.0, "a gap between samples longer than this re-initialises "
+              "the pack to equilibrium", "s", 0.001, 3600.0),
+]
+
+
+class EstimatorNode(Node):
+    """Lamella-pack torque estimator (see module docstring)."""
+
+    def __init__(self):
+        super().__init__(NAME)
+        from clutch_ros.model import ClutchEstimator
+
+        self._cfg = declare_params(self, PARAMS)
+        self._params = declare_model_params(self, DEFAULT_ESTIMATOR_PRESET)
+        self._estimator = ClutchEstimator(self._params,
+                                          max_gap_s=self._cfg["estimator.max_gap"])
+        self._skipped: dict[str, int] = {}
+        self._accepted = 0
+        self._accepted_at_last_diag = 0
+        self._last_input = None
+        self._last_error = ""
+        self._pub = self.create_publisher(_msg_type(), "clutch_estimate", reliable_qos())
+        self.create_subscription(_rig_state_type(), "rig_state", self._on_rig_state,
+                                 sensor_qos())
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._diag = Diagnostics(self, self._diagnose)
+        self.get_logger().info(f"estimating with spline law '{self._params.spline.law}', "
+                               f"{self._params.pack.lamella_count} lamellas")
+
+    def _on_rig_state(self, msg) -> None:
+        from clutch_ros.model import SampleRejected
+
+        now = self.get_clock().now().nanoseconds * 1e-9
+        self._last_input = now
+        stamp = stamp_to_sec(msg.header.stamp)
+        max_age = self._cfg["estimator.max_sample_age"]
+        if max_age > 0.0 and now - stamp > max_age:
+            self._skip("stale", f"sample {now - stamp:.3f} s old (> {max_age} s)")
+            return
+        measured = msg.measured_torque if msg.has_measured_torque else math.nan
+        try:
+            est = self._estimator.update(stamp, msg.actuating_pressure, msg.lamella_temperature,
+                                         msg.slip_speed, measured)
+        except SampleRejected as err:
+            self._skip(type(err).__name__, str(err))
+            return
+        if not math.isfinite(est.modelled_torque):  # defence in depth: never publish NaN
+            self._skip("non_finite_output", "model produced a non-finite torque")
+            return
+        self._accepted += 1
+        self._pub.publish(estimate_to_msg(est, msg.header, self._pub.msg_type()))
+
+    def _skip(self, kind: str, why: str) -> None:
+        self._skipped[kind] = self._skipped.get(kind, 0) + 1
+        self._last_error = why
+        self.get_logger().warning(f"skipped sample ({kind}): {why}",
+                                  throttle_duration_sec=5.0)
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        from clutch_ros.errors import ClutchError
+        from clutch_ros.nodes.model_params import validated_params
+
+        changes = {p.name: p.value for p in params}
+        own = {k: v for k, v in changes.items() if k.startswith("estimator.")}
+        model = {k: v for k, v in changes.items() if k not in own}
+        if model:
+            current = {s.name: self.get_parameter(s.name).value for s in model_param_specs()}
+            try:
+                new_params = validated_params(current, model)
+            except ClutchError as err:
+                return SetParametersResult(successful=False, reason=str(err))
+            self._estimator.set_params(new_params)
+            self._params = new_params
+        self._cfg.update(own)
+        if "estimator.max_gap" in own:
+            self._estimator.max_gap_s = own["estimator.max_gap"]
+        return SetParametersResult(successful=True)
+
+    def _diagnose(self):
+        now = self.get_clock().now().nanoseconds * 1e-9
+        rate = float(self._accepted - self._accepted_at_last_diag)
+        self._accepted_at_last_diag = self._accepted
+        values = {"accepted": self._accepted, "input_rate_hz": rate,
+                  "spline_law": self._params.spline.law, "last_error": self._last_error}
+        values.update({f"skipped_{k}": v for k, v in self._skipped.items()})
+        if self._last_input is None:
+            return "WARN", "no rig_state received yet", values
+        age = now - self._last_input
+        values["input_age_s"] = age
+        if age > self._cfg["estimator.input_timeout"]:
+            return "WARN", f"rig_state stale ({age:.2f} s)", values
+        if self._skipped:
+            return "OK", f"running; skipped {sum(self._skipped.values())} samples", values
+        return "OK", "running", values
+
+
+def _msg_type():
+    from clutch_msgs.msg import ClutchEstimate
+
+    return ClutchEstimate
+
+
+def _rig_state_type():
+    from clutch_msgs.msg import RigState
+
+    return RigState
+
+
+def main(args=None) -> int:
+    """Console entry point: ``ros2 run clutch_ros estimator``."""
+    return run_node(NAME, __doc__, PARAMS + _model_specs_for_help(), EstimatorNode, args)
+
+
+def _model_specs_for_help():
+    try:
+        from clutch_ros.params_file import load_flat
+
+        return model_param_specs(defaults=load_flat(DEFAULT_ESTIMATOR_PRESET))
+    except Exception:  # noqa: BLE001 - help must work even with a broken preset
+        return []
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
