@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import math
 
-from rclpy.node import Node
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
 
 from clutch_ros.nodes.common import (
     Diagnostics,

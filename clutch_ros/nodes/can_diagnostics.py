@@ -1,0 +1,55 @@
+"""The can_bridge's health as one diagnostic status (level, message, key/values).
+
+Levels: ERROR when the CAN link is down; WARN when no rig frame arrived in the last period,
+required signal groups are stale, frames were dropped, decode or error frames were seen since
+the previous report, or the pump watchdog tripped; OK otherwise. Counts are totals since
+start; rates are per second since the previous report.
+"""
+
+from __future__ import annotations
+
+import time
+
+__all__ = ["bridge_status"]
+
+_previous: dict[int, dict] = {}
+
+
+def bridge_status(assembler, bus, gate, published: int, stale_reports: int):
+    """Return ``(level, message, values)`` for the bridge's /diagnostics status."""
+    c = assembler.counters()
+    total_rate, per_id = assembler.rates(time.monotonic())
+    prev = _previous.setdefault(id(assembler), {})
+    values = {
+        "frames_total": c.frames_total, "frame_rate_hz": total_rate,
+        "decoded_frames": c.decoded_frames, "unknown_frames": c.unknown_frames,
+        "unknown_ids": c.unknown_ids_text(), "decode_errors": c.decode_errors,
+        "error_frames": c.error_frames, "bus_off_frames": c.bus_off_frames,
+        "remote_frames": c.remote_frames, "fd_frames": c.fd_frames,
+        "dropped_frames": c.dropped_frames, "listener_errors": c.listener_errors,
+        "rig_state_published": published, "stale_samples": stale_reports,
+        "pump_request_pa": gate.applied_pressure, "pump_commands": gate.commands,
+        "pump_rejected_commands": gate.rejected_commands,
+        "watchdog_trips": gate.watchdog_trips,
+    }
+    values.update({f"rate_0x{key:X}_hz": rate for key, rate in sorted(per_id.items())})
+    level, problems = "OK", []
+    if bus is not None:
+        status = bus.status()
+        values.update({"link_state": str(status.state), "link_reason": status.reason,
+                       "bus_state": status.bus_state, "reconnects": status.connects,
+                       "disconnects": status.disconnects, "send_failures": status.send_failures})
+        if str(status.state) != "up":
+            level = "ERROR"
+            problems.append(f"CAN link {status.state}: {status.reason}")
+    for key, what in (("decode_errors", "decode errors"), ("error_frames", "error frames"),
+                      ("dropped_frames", "dropped frames"), ("watchdog_trips", "watchdog trips")):
+        new = values[key] - prev.get(key, 0)
+        if new > 0:
+            problems.append(f"{new} new {what}")
+            level = "WARN" if level == "OK" else level
+        prev[key] = values[key]
+    if total_rate == 0.0 and level == "OK":
+        level = "WARN"
+        problems.append("no rig frames")
+    return level, "; ".join(problems) or "bridging", values
