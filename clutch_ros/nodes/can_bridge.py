@@ -81,7 +81,8 @@ class CanBridgeNode(Node):
 
         cfg = self._cfg = declare_params(self, PARAMS)
         self._db = RigDatabase(cfg["bridge.dbc_file"] or None)
-        self._assembler = RigStateAssembler(self._db)
+        self._assembler = RigStateAssembler(
+            self._db, socketcan_error_frames=cfg["can.interface"] == "socketcan")
         self._gate = PumpCommandGate(time.monotonic, PumpGateConfig(
             max_pressure=cfg["pump.max_pressure"], rate_limit_up=cfg["pump.rate_limit"],
             watchdog_timeout=cfg["pump.watchdog_timeout"]))

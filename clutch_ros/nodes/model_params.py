@@ -29,6 +29,9 @@ def model_param_specs(prefix: str = "", defaults: dict | None = None) -> list[Pa
         default = (defaults or {}).get(key, _attr(spec, "default"))
         if default is None:
             continue
+        kind = _attr(spec, "kind", default="")
+        if kind == "float" and isinstance(default, int) and not isinstance(default, bool):
+            default = float(default)  # a YAML "35" must still declare a double parameter
         specs.append(ParamSpec(
             name=prefix + key,
             default=default,

@@ -1,0 +1,54 @@
+"""The CAN layer of clutch_ros: DBC codec, bus factory, frames <-> RigState (no ROS here).
+
+Modules:
+
+* :mod:`~clutch_ros.canbus.dbc` -- :class:`RigDatabase` (strict DBC, SI decode/encode),
+  :class:`PumpRequestCodec` (counter + CRC-8 SAE J1850).
+* :mod:`~clutch_ros.canbus.bus` -- :class:`BusConfig`, :func:`open_bus`,
+  :class:`ReconnectingBus` (bus-off / unplugged adapter recovery with back-off).
+* :mod:`~clutch_ros.canbus.assembler` -- :class:`RigStateAssembler` (a ``can.Listener``)
+  and :class:`RigSample` (one RigState in SI units, with stale mask).
+* :mod:`~clutch_ros.canbus.pump` -- :class:`PumpCommandGate` (PressureCommand -> PumpRequest,
+  clamp, rate limit, watchdog).
+* :mod:`~clutch_ros.canbus.logsource` -- :class:`LogSource` (ASC/BLF/any python-can log).
+* :mod:`~clutch_ros.canbus.stats` -- frame counters, rates, rate limiter.
+* :mod:`~clutch_ros.canbus.errors` -- :class:`CanError` and its subclasses.
+* :mod:`~clutch_ros.canbus.bench` -- ``python -m clutch_ros.canbus.bench``.
+"""
+
+from clutch_ros.canbus.assembler import RigSample, RigStateAssembler
+from clutch_ros.canbus.bus import BusConfig, LinkState, ReconnectingBus, open_bus
+from clutch_ros.canbus.dbc import PumpRequestCodec, RigDatabase
+from clutch_ros.canbus.errors import (
+    BusConfigError,
+    BusUnavailable,
+    CanError,
+    DbcError,
+    EncodeError,
+    FrameDecodeError,
+    LogFileError,
+)
+from clutch_ros.canbus.logsource import LogSource
+from clutch_ros.canbus.pump import GateOutput, PumpCommandGate, PumpGateConfig
+
+__all__ = [
+    "BusConfig",
+    "BusConfigError",
+    "BusUnavailable",
+    "CanError",
+    "DbcError",
+    "EncodeError",
+    "FrameDecodeError",
+    "GateOutput",
+    "LinkState",
+    "LogFileError",
+    "LogSource",
+    "PumpCommandGate",
+    "PumpGateConfig",
+    "PumpRequestCodec",
+    "ReconnectingBus",
+    "RigDatabase",
+    "RigSample",
+    "RigStateAssembler",
+    "open_bus",
+]

@@ -1,0 +1,487 @@
+"""Bus configuration, opening, and a self-healing bus for bus-off and unplugged adapters.
+
+:class:`BusConfig` holds what the can_bridge parameters choose (interface, channel, bitrate,
+filters, ...) and validates it; :func:`open_bus` opens it with python-can, ignoring python-can
+config files so a run is reproducible. :class:`ReconnectingBus` is a :class:`can.BusABC` that
+wraps such a bus: when receiving or sending fails (``CanOperationError``, ``OSError``, ...),
+the controller reports bus-off (``BusState.ERROR`` or a SocketCAN bus-off error frame) or the
+adapter cannot be opened, it closes the bus and reopens it with exponential back-off. It never
+raises from :meth:`~can.BusABC.recv` (so a :class:`can.Notifier` on it never dies), reports
+every state transition to a callback and logs rate-limited (no warning storm).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any
+
+import can
+import can.interfaces
+
+from clutch_ros.canbus.errors import BusConfigError, BusUnavailable
+from clutch_ros.canbus.stats import RateLimiter, classify_socketcan_error
+
+__all__ = [
+    "BusConfig",
+    "LinkEvent",
+    "LinkState",
+    "LinkStatus",
+    "ReconnectingBus",
+    "open_bus",
+    "parse_filters",
+]
+
+_LOG = logging.getLogger(__name__)
+_RESERVED = {"interface", "channel", "bitrate", "receive_own_messages", "can_filters", "fd"}
+
+
+def parse_filters(specs: Sequence[str | Mapping[str, Any]]) -> tuple[dict[str, Any], ...]:
+    """Parse CAN filters: dicts (python-can form) or strings ``"ID:MASK"`` / ``"ID:MASK:x"``.
+
+    IDs and masks accept any int literal (``0x100``). ``:x`` marks a 29-bit filter. Raises
+    :class:`BusConfigError` for malformed entries.
+    """
+    out = []
+    for spec in specs:
+        if isinstance(spec, str):
+            parts = spec.strip().split(":")
+            if len(parts) not in (2, 3) or (len(parts) == 3 and parts[2] != "x"):
+                raise BusConfigError(f"CAN filter {spec!r} is not 'ID:MASK' or 'ID:MASK:x'")
+            try:
+                entry: dict[str, Any] = {"can_id": int(parts[0], 0), "can_mask": int(parts[1], 0)}
+            except ValueError as err:
+                raise BusConfigError(f"CAN filter {spec!r}: {err}") from err
+            if len(parts) == 3:
+                entry["extended"] = True
+        elif isinstance(spec, Mapping):
+            entry = dict(spec)
+        else:
+            raise BusConfigError(f"CAN filter {spec!r} is neither a string nor a mapping")
+        can_id, mask = entry.get("can_id"), entry.get("can_mask")
+        if not isinstance(can_id, int) or not isinstance(mask, int):
+            raise BusConfigError(f"CAN filter {spec!r} needs integer can_id and can_mask")
+        if not (0 <= can_id < 1 << 29 and 0 <= mask < 1 << 29):
+            raise BusConfigError(f"CAN filter {spec!r}: id and mask must be 0..0x1FFFFFFF")
+        if set(entry) - {"can_id", "can_mask", "extended"}:
+            raise BusConfigError(f"CAN filter {spec!r} has unknown keys")
+        out.append(entry)
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """Which CAN bus to open (validated on construction; raises :class:`BusConfigError`).
+
+    ``interface``: a python-can interface name (socketcan, vector, pcan, kvaser,
+    udp_multicast, virtual, ...); ``channel``: interface specific (``can0``, ``0``,
+    ``PCAN_USBBUS1``, a multicast group, any name for virtual); ``bitrate`` [bit/s] or None
+    for the interface default; ``data_bitrate`` [bit/s] for the CAN FD data phase;
+    ``can_filters``: python-can filter dicts or ``"ID:MASK[:x]"`` strings; ``fd``: None keeps
+    the interface default; ``extra``: further interface keyword arguments (e.g. ``port`` for
+    udp_multicast, ``app_name`` for vector).
+    """
+
+    interface: str = "virtual"
+    channel: str | int | None = "clutch_rig"
+    bitrate: int | None = None
+    receive_own_messages: bool = False
+    can_filters: tuple[dict[str, Any], ...] | None = None
+    fd: bool | None = None
+    data_bitrate: int | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.interface, str) or self.interface not in can.interfaces.BACKENDS:
+            raise BusConfigError(
+                f"unknown CAN interface {self.interface!r}; python-can knows: "
+                f"{', '.join(sorted(can.interfaces.BACKENDS))}"
+            )
+        for name in ("bitrate", "data_bitrate"):
+            value = getattr(self, name)
+            if value is not None and (
+                isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= 20_000_000
+            ):
+                raise BusConfigError(f"{name} must be a positive int [bit/s], got {value!r}")
+        if self.data_bitrate is not None and not self.fd:
+            raise BusConfigError("data_bitrate needs fd=True")
+        if self.can_filters is not None:
+            object.__setattr__(self, "can_filters", parse_filters(self.can_filters))
+        if not isinstance(self.extra, Mapping) or set(self.extra) & _RESERVED:
+            raise BusConfigError(f"extra must be a mapping without the keys {sorted(_RESERVED)}")
+        if self.receive_own_messages and self.interface == "udp_multicast":
+            raise BusConfigError("udp_multicast does not support receive_own_messages")
+
+    def kwargs(self) -> dict[str, Any]:
+        """Return the keyword arguments for :func:`can.Bus`."""
+        kwargs: dict[str, Any] = {
+            "interface": self.interface,
+            "channel": self.channel,
+            "receive_own_messages": self.receive_own_messages,
+        }
+        if self.bitrate is not None:
+            kwargs["bitrate"] = self.bitrate
+        if self.data_bitrate is not None:
+            kwargs["data_bitrate"] = self.data_bitrate
+        if self.fd is not None:
+            kwargs["fd"] = self.fd
+        if self.can_filters:
+            kwargs["can_filters"] = [dict(f) for f in self.can_filters]
+        kwargs.update(self.extra)
+        return kwargs
+
+    def describe(self) -> str:
+        """Return ``interface:channel`` for messages."""
+        return f"{self.interface}:{self.channel}"
+
+
+def open_bus(config: BusConfig) -> can.BusABC:
+    """Open the bus described by ``config`` (python-can config files are ignored).
+
+    Raises :class:`BusUnavailable` when the interface driver is missing or the device cannot
+    be opened, :class:`BusConfigError` when python-can rejects the arguments.
+    """
+    try:
+        return can.Bus(ignore_config=True, **config.kwargs())
+    except (TypeError, NotImplementedError) as err:
+        if isinstance(err, can.CanInterfaceNotImplementedError):
+            raise BusUnavailable(
+                f"{config.describe()}: interface not available: {err}"
+            ) from err
+        raise BusConfigError(f"{config.describe()}: invalid bus arguments: {err}") from err
+    except ValueError as err:
+        raise BusConfigError(f"{config.describe()}: invalid bus arguments: {err}") from err
+    except Exception as err:  # CanError, OSError, ImportError, struct.error, driver errors
+        raise BusUnavailable(
+            f"{config.describe()}: cannot open bus: {type(err).__name__}: {err}"
+        ) from err
+
+
+class LinkState(StrEnum):
+    """State of a :class:`ReconnectingBus` link."""
+
+    CONNECTING = "connecting"
+    UP = "up"
+    DOWN = "down"
+    CLOSED = "closed"
+
+
+@dataclass(frozen=True)
+class LinkEvent:
+    """A link state transition at ``time`` [s] (the bus's clock), with its reason."""
+
+    time: float
+    old: LinkState
+    new: LinkState
+    reason: str
+
+
+@dataclass(frozen=True)
+class LinkStatus:
+    """Diagnostics of a :class:`ReconnectingBus` (times in seconds of its clock)."""
+
+    state: LinkState
+    reason: str
+    since: float
+    connects: int
+    disconnects: int
+    failed_attempts: int
+    next_attempt_in: float
+    send_failures: int
+    bus_off_frames: int
+    bus_state: str
+    suppressed_reports: int
+
+
+class ReconnectingBus(can.BusABC):
+    """A :class:`can.BusABC` that keeps its underlying bus open (see module docstring).
+
+    ``factory`` opens a bus from ``config`` (default :func:`open_bus`); ``clock`` returns
+    seconds (monotonic); ``sleep(seconds)`` waits while the link is down (default: an event
+    wait that :meth:`shutdown` interrupts). Back-off: the n-th consecutive failed attempt
+    waits ``min(backoff_initial * backoff_factor**(n-1), backoff_max)`` [s]; the count resets
+    once the link stayed up for ``stable_after`` [s]. ``max_send_failures`` consecutive send
+    errors take the link down. Bus-off is seen from ``BusState.ERROR`` (polled every
+    ``state_poll_interval`` [s]) and, when ``socketcan_error_frames`` (default: only for the
+    socketcan interface, whose error frames carry the error class in the identifier), from
+    bus-off error frames; ``reconnect_on_bus_off`` reopens the bus then. ``on_event``
+    receives every :class:`LinkEvent`; log warnings are limited to one per
+    ``report_interval`` [s]. The constructor never raises for an
+    unavailable bus: it starts DOWN and retries. After :meth:`shutdown`, ``recv`` raises
+    ``can.CanOperationError`` like any closed python-can bus (stop the Notifier first).
+    """
+
+    def __init__(
+        self,
+        config: BusConfig,
+        *,
+        factory: Callable[[BusConfig], can.BusABC] = open_bus,
+        clock: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], Any] | None = None,
+        backoff_initial: float = 0.1,
+        backoff_max: float = 5.0,
+        backoff_factor: float = 2.0,
+        stable_after: float = 10.0,
+        max_send_failures: int = 3,
+        reconnect_on_bus_off: bool = True,
+        socketcan_error_frames: bool | None = None,
+        state_poll_interval: float = 1.0,
+        report_interval: float = 10.0,
+        on_event: Callable[[LinkEvent], None] | None = None,
+        logger: logging.Logger | None = None,
+    ) -> None:
+        if not (0 < backoff_initial <= backoff_max and backoff_factor >= 1.0):
+            raise BusConfigError("need 0 < backoff_initial <= backoff_max and factor >= 1")
+        if max_send_failures < 1:
+            raise BusConfigError("max_send_failures must be >= 1")
+        super().__init__(channel=config.channel, can_filters=None)
+        self.config = config
+        self.channel_info = f"reconnecting {config.describe()}"
+        self._can_protocol = can.CanProtocol.CAN_FD if config.fd else can.CanProtocol.CAN_20
+        self._factory = factory
+        self._clock = clock
+        self._wake = threading.Event()
+        self._sleep = sleep if sleep is not None else self._wake.wait
+        self._backoff = (backoff_initial, backoff_max, backoff_factor)
+        self._stable_after = stable_after
+        self._max_send_failures = max_send_failures
+        self._reconnect_on_bus_off = reconnect_on_bus_off
+        self._socketcan_errors = (
+            config.interface == "socketcan"
+            if socketcan_error_frames is None
+            else socketcan_error_frames
+        )
+        self._poll_interval = state_poll_interval
+        self._on_event = on_event
+        self._log = logger or _LOG
+        self._limiter = RateLimiter(report_interval)
+        self._lock = threading.RLock()
+        self._bus: can.BusABC | None = None
+        self._state = LinkState.CONNECTING
+        self._reason = "not yet opened"
+        now = clock()
+        self._since = now
+        self._up_since = now
+        self._next_attempt = now
+        self._failures = 0  # consecutive failed attempts / drops (back-off exponent)
+        self._send_failures_row = 0
+        self._next_poll = now
+        self.connects = 0
+        self.disconnects = 0
+        self.failed_attempts = 0
+        self.send_failures = 0
+        self.bus_off_frames = 0
+        #: the last 64 transitions
+        self.events: deque[LinkEvent] = deque(maxlen=64)
+        with self._lock:
+            self._connect(now)
+
+    # -- state machine --------------------------------------------------------------------
+
+    def _delay(self) -> float:
+        initial, maximum, factor = self._backoff
+        return min(initial * factor ** max(self._failures - 1, 0), maximum)
+
+    def _set_state(self, new: LinkState, reason: str, now: float) -> None:
+        old = self._state
+        self._reason = reason
+        if new == old:
+            return
+        self._state, self._since = new, now
+        event = LinkEvent(now, old, new, reason)
+        self.events.append(event)
+        if self._on_event is not None:
+            try:
+                self._on_event(event)
+            except Exception:  # a broken callback must not break the bus
+                self._log.exception("link event callback failed")
+        if new == LinkState.UP:
+            self._log.info("CAN %s up", self.config.describe())
+        elif new == LinkState.DOWN and self._limiter.allow(now):
+            extra = self._limiter.suppressed_at_last_allow
+            self._log.warning(
+                "CAN %s down: %s (retry in %.2f s%s)",
+                self.config.describe(),
+                reason,
+                self._delay(),
+                f", {extra} similar reports suppressed" if extra else "",
+            )
+
+    def _connect(self, now: float) -> can.BusABC | None:
+        try:
+            bus = self._factory(self.config)
+        except Exception as err:  # BusUnavailable, BusConfigError, driver errors: retry
+            self.failed_attempts += 1
+            self._failures += 1
+            self._next_attempt = now + self._delay()
+            if self._state == LinkState.DOWN and self._limiter.allow(now):
+                self._log.warning(
+                    "CAN %s still down after %d attempts: %s",
+                    self.config.describe(),
+                    self._failures,
+                    err,
+                )
+            self._set_state(LinkState.DOWN, f"open failed: {err}", now)
+            return None
+        self._bus = bus
+        self.connects += 1
+        self._up_since = now
+        self._send_failures_row = 0
+        self._next_poll = now + self._poll_interval
+        self._set_state(LinkState.UP, "connected", now)
+        return bus
+
+    def _fail(self, bus: can.BusABC, reason: str) -> None:
+        with self._lock:
+            if bus is not self._bus:
+                return  # another thread already handled this bus
+            self._bus = None
+            now = self._clock()
+            self.disconnects += 1
+            if now - self._up_since >= self._stable_after:
+                self._failures = 0
+            self._failures += 1
+            self._next_attempt = now + self._delay()
+            self._set_state(LinkState.DOWN, reason, now)
+        try:
+            bus.shutdown()
+        except Exception as err:  # the adapter may be gone already
+            self._log.debug("shutdown of failed bus raised: %s", err)
+
+    def _current(self) -> can.BusABC | None:
+        with self._lock:
+            if self._bus is not None or self._state == LinkState.CLOSED:
+                return self._bus
+            now = self._clock()
+            if now >= self._next_attempt:
+                return self._connect(now)
+            return None
+
+    def _poll_state(self, bus: can.BusABC) -> None:
+        now = self._clock()
+        if now < self._next_poll:
+            return
+        self._next_poll = now + self._poll_interval
+        try:
+            state = bus.state
+        except Exception:  # not every interface reports a state
+            return
+        if state == can.BusState.ERROR:
+            self._fail(bus, "controller reports bus-off (BusState.ERROR)")
+
+    # -- BusABC interface -----------------------------------------------------------------
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        bus = self._current()
+        if bus is None:
+            with self._lock:
+                if self._state == LinkState.CLOSED:
+                    raise can.CanOperationError(f"{self.channel_info} is shut down")
+                wait = max(0.0, self._next_attempt - self._clock())
+            if timeout is not None:
+                wait = min(wait, timeout)
+            if wait > 0.0:
+                self._sleep(wait)
+            return None, False
+        try:
+            msg = bus.recv(timeout)
+        except Exception as err:  # CanOperationError, OSError, driver errors
+            self._fail(bus, f"receive failed: {type(err).__name__}: {err}")
+            return None, False
+        if msg is not None and msg.is_error_frame and self._socketcan_errors:
+            bus_off, _ = classify_socketcan_error(msg.arbitration_id, msg.data)
+            if bus_off:
+                self.bus_off_frames += 1
+                if self._reconnect_on_bus_off:
+                    self._fail(bus, "bus-off error frame")
+        self._poll_state(bus)
+        return msg, True  # the underlying bus applied the filters
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """Send ``msg`` (``timeout`` [s]); raises :class:`BusUnavailable` when it cannot."""
+        bus = self._current()
+        if bus is None:
+            self.send_failures += 1
+            raise BusUnavailable(f"CAN {self.config.describe()} is {self._state.value}: "
+                                 f"{self._reason}")
+        try:
+            bus.send(msg, timeout)
+        except Exception as err:  # CanOperationError, CanTimeoutError, OSError, ...
+            self.send_failures += 1
+            with self._lock:
+                self._send_failures_row += 1
+                row = self._send_failures_row
+            if row >= self._max_send_failures:
+                self._fail(bus, f"send failed {row} times: {type(err).__name__}: {err}")
+            raise BusUnavailable(f"CAN {self.config.describe()}: send failed: {err}") from err
+        with self._lock:
+            self._send_failures_row = 0
+
+    def try_send(self, msg: can.Message, timeout: float | None = 0.01) -> bool:
+        """Send ``msg`` like :meth:`send` but return False instead of raising."""
+        try:
+            self.send(msg, timeout)
+        except BusUnavailable:
+            return False
+        return True
+
+    @property
+    def link_state(self) -> LinkState:
+        """Current :class:`LinkState`."""
+        return self._state
+
+    @property
+    def state(self) -> can.BusState:
+        """python-can state of the underlying bus; ``BusState.ERROR`` while the link is down."""
+        bus = self._bus
+        if bus is None:
+            return can.BusState.ERROR
+        try:
+            return bus.state
+        except Exception:
+            return can.BusState.ACTIVE
+
+    @state.setter
+    def state(self, new_state: can.BusState) -> None:
+        bus = self._bus
+        if bus is None:
+            raise BusUnavailable(f"CAN {self.config.describe()} is down")
+        bus.state = new_state
+
+    def status(self) -> LinkStatus:
+        """Return a :class:`LinkStatus` for diagnostics."""
+        with self._lock:
+            now = self._clock()
+            return LinkStatus(
+                state=self._state,
+                reason=self._reason,
+                since=self._since,
+                connects=self.connects,
+                disconnects=self.disconnects,
+                failed_attempts=self.failed_attempts,
+                next_attempt_in=(
+                    max(0.0, self._next_attempt - now) if self._state == LinkState.DOWN else 0.0
+                ),
+                send_failures=self.send_failures,
+                bus_off_frames=self.bus_off_frames,
+                bus_state=self.state.name,
+                suppressed_reports=self._limiter.suppressed,
+            )
+
+    def shutdown(self) -> None:
+        """Close the link for good (wakes a receiver waiting for the next attempt)."""
+        with self._lock:
+            bus, self._bus = self._bus, None
+            self._set_state(LinkState.CLOSED, "shut down", self._clock())
+        self._wake.set()
+        if bus is not None:
+            try:
+                bus.shutdown()
+            except Exception as err:
+                self._log.debug("shutdown raised: %s", err)
+        super().shutdown()

@@ -1,0 +1,493 @@
+"""The rig's CAN database: strict DBC loading, SI decoding and encoding, E2E protection.
+
+The DBC (``params/rig.dbc``) carries bus units (bar, rpm, Nm, degC, V, A). This module is
+the one place where they are converted to and from SI:
+
+============  =========  ==================
+DBC unit      SI unit    factor (SI = f * bus)
+============  =========  ==================
+``bar``       Pa         1e5
+``rpm``       rad/s      2 pi / 60
+``Nm``        N m        1
+``degC``      degC       1 (temperatures stay in degrees Celsius, as in RigState)
+``V``         V          1
+``A``         A          1
+(none)        (none)     1 (counters, checksums, states, flags)
+============  =========  ==================
+
+Frames whose message attribute ``E2EChecksum`` is ``CRC8_SAE_J1850`` carry a 4-bit rolling
+counter (signal ``*_Counter``) and an 8-bit checksum in byte 0 (signal ``*_Checksum``): CRC-8
+SAE J1850 (polynomial 0x1D, initial value 0xFF, final XOR 0xFF, not reflected) over payload
+bytes 1..DLC-1. :func:`crc8_sae_j1850` implements it (check value of ``b"123456789"``: 0x4B).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+import cantools
+import cantools.database
+
+from clutch_ros.canbus.errors import DbcError, EncodeError, FrameDecodeError
+from clutch_ros.errors import ConfigError
+
+__all__ = [
+    "CAN_EFF_FLAG",
+    "UNIT_TO_SI",
+    "FrameSpec",
+    "RigDatabase",
+    "SignalSpec",
+    "PumpRequestCodec",
+    "counter_gap",
+    "crc8_sae_j1850",
+    "default_dbc_path",
+    "format_frame_key",
+    "frame_key",
+]
+
+#: Flag or-ed into a frame key for 29-bit identifiers (the SocketCAN ``CAN_EFF_FLAG``).
+CAN_EFF_FLAG = 0x80000000
+
+#: DBC unit -> (SI unit, factor): ``si_value = factor * bus_value``.
+UNIT_TO_SI: dict[str, tuple[str, float]] = {
+    "bar": ("Pa", 1e5),
+    "rpm": ("rad/s", 2.0 * math.pi / 60.0),
+    "Nm": ("N m", 1.0),
+    "degC": ("degC", 1.0),
+    "V": ("V", 1.0),
+    "A": ("A", 1.0),
+    "": ("", 1.0),
+}
+
+_E2E_ATTRIBUTE = "E2EChecksum"
+_E2E_CRC8 = "CRC8_SAE_J1850"
+
+
+def _make_crc8_table() -> tuple[int, ...]:
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1D) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+        table.append(crc)
+    return tuple(table)
+
+
+_CRC8_TABLE = _make_crc8_table()
+
+
+def crc8_sae_j1850(data: bytes | bytearray) -> int:
+    """Return the CRC-8 SAE J1850 of ``data`` (poly 0x1D, init 0xFF, xorout 0xFF), 0..255."""
+    crc = 0xFF
+    for byte in data:
+        crc = _CRC8_TABLE[crc ^ byte]
+    return crc ^ 0xFF
+
+
+def counter_gap(previous: int, current: int, modulo: int = 16) -> int:
+    """Return how many frames were lost between two rolling-counter values (0 = consecutive).
+
+    A repeated counter (``current == previous``) counts as ``modulo - 1`` lost frames; a
+    4-bit counter cannot see more than 15 consecutive losses.
+    """
+    return (current - previous - 1) % modulo
+
+
+def frame_key(arbitration_id: int, is_extended: bool = False) -> int:
+    """Return the key identifying a frame: the id, or-ed with :data:`CAN_EFF_FLAG` if 29-bit."""
+    return arbitration_id | CAN_EFF_FLAG if is_extended else arbitration_id
+
+
+def format_frame_key(key: int) -> str:
+    """Format a frame key like Vector ASC: ``0x100`` or ``0x18EBFF00x`` for 29-bit ids."""
+    if key & CAN_EFF_FLAG:
+        return f"0x{key & ~CAN_EFF_FLAG:08X}x"
+    return f"0x{key:03X}"
+
+
+def default_dbc_path() -> Path:
+    """Return the path of the rig DBC (source tree ``params/rig.dbc`` or the installed share)."""
+    source = Path(__file__).resolve().parents[2] / "params" / "rig.dbc"
+    if source.is_file():
+        return source
+    return Path(sys.prefix) / "share" / "clutch_ros" / "params" / "rig.dbc"
+
+
+@dataclass(frozen=True)
+class SignalSpec:
+    """One DBC signal with its SI conversion.
+
+    ``factor`` converts bus to SI (``si = factor * bus``); ``minimum``/``maximum`` and
+    ``resolution`` are in SI units (``si_unit``); ``unit`` is the DBC unit.
+    """
+
+    name: str
+    unit: str
+    si_unit: str
+    factor: float
+    minimum: float | None
+    maximum: float | None
+    resolution: float
+    choices: Mapping[int, str]
+
+
+@dataclass(frozen=True)
+class FrameSpec:
+    """One DBC message: identifier, length [bytes], cycle time [s] and its signals."""
+
+    name: str
+    frame_id: int
+    is_extended: bool
+    length: int
+    cycle_time: float | None
+    signals: tuple[SignalSpec, ...]
+    counter_signal: str | None
+    checksum_signal: str | None
+
+    @property
+    def key(self) -> int:
+        """Frame key (see :func:`frame_key`)."""
+        return frame_key(self.frame_id, self.is_extended)
+
+    @property
+    def e2e(self) -> bool:
+        """True when the frame carries a CRC-8 checksum (and a rolling counter)."""
+        return self.checksum_signal is not None
+
+
+class RigDatabase:
+    """The rig CAN database, loaded strictly, decoding to and encoding from SI values.
+
+    ``path`` defaults to :func:`default_dbc_path`. Raises :class:`DbcError` naming the file
+    when it is missing, does not parse strictly, uses a unit outside :data:`UNIT_TO_SI`, or an
+    E2E frame lacks its checksum (8 bits at bit 0) or counter signal.
+    """
+
+    def __init__(self, path: str | Path | None = None) -> None:
+        self.path = Path(path) if path is not None else default_dbc_path()
+        try:
+            self._db = cantools.database.load_file(str(self.path), strict=True)
+        except FileNotFoundError as err:
+            raise DbcError(f"{self.path}: DBC file not found") from err
+        except (OSError, UnicodeDecodeError) as err:
+            raise DbcError(f"{self.path}: cannot read DBC file: {err}") from err
+        except Exception as err:  # cantools raises ParseError, ValueError, KeyError, ...
+            raise DbcError(f"{self.path}: invalid DBC: {err}") from err
+        if not isinstance(self._db, cantools.database.can.Database):
+            raise DbcError(f"{self.path}: not a CAN database")
+        self._by_key: dict[int, FrameSpec] = {}
+        self._by_name: dict[str, FrameSpec] = {}
+        self._messages: dict[int, cantools.database.can.Message] = {}
+        self._factors: dict[int, tuple[tuple[str, float], ...]] = {}
+        self._signals: dict[str, SignalSpec] = {}
+        for message in self._db.messages:
+            spec = self._make_spec(message)
+            self._by_key[spec.key] = spec
+            self._by_name[spec.name] = spec
+            self._messages[spec.key] = message
+            self._factors[spec.key] = tuple(
+                (sig.name, sig.factor) for sig in spec.signals if sig.factor != 1.0
+            )
+            for sig in spec.signals:
+                self._signals[sig.name] = sig
+
+    def _make_spec(self, message: cantools.database.can.Message) -> FrameSpec:
+        signals = []
+        for sig in message.signals:
+            unit = sig.unit or ""
+            if unit not in UNIT_TO_SI:
+                raise DbcError(
+                    f"{self.path}: signal {message.name}.{sig.name} has unit {unit!r}; "
+                    f"known units: {sorted(UNIT_TO_SI)}"
+                )
+            si_unit, factor = UNIT_TO_SI[unit]
+            signals.append(
+                SignalSpec(
+                    name=sig.name,
+                    unit=unit,
+                    si_unit=si_unit,
+                    factor=factor,
+                    minimum=None if sig.minimum is None else sig.minimum * factor,
+                    maximum=None if sig.maximum is None else sig.maximum * factor,
+                    resolution=abs(sig.scale) * factor,
+                    choices={int(k): str(v) for k, v in (sig.choices or {}).items()},
+                )
+            )
+        counter = next((s.name for s in message.signals if s.name.endswith("_Counter")), None)
+        checksum = None
+        attr = message.dbc.attributes.get(_E2E_ATTRIBUTE) if message.dbc else None
+        scheme = attr.value if attr is not None else None
+        if isinstance(scheme, int) and attr is not None:
+            choices = attr.definition.choices or []
+            scheme = choices[scheme] if 0 <= scheme < len(choices) else None
+        if scheme == _E2E_CRC8:
+            checksum = next(
+                (s for s in message.signals if s.name.endswith("_Checksum")), None
+            )
+            if checksum is None or checksum.start != 0 or checksum.length != 8 or counter is None:
+                raise DbcError(
+                    f"{self.path}: E2E message {message.name} needs an 8-bit *_Checksum "
+                    "signal at bit 0 and a *_Counter signal"
+                )
+            checksum = checksum.name
+        cycle = message.cycle_time
+        return FrameSpec(
+            name=message.name,
+            frame_id=message.frame_id,
+            is_extended=bool(message.is_extended_frame),
+            length=message.length,
+            cycle_time=cycle / 1000.0 if cycle else None,
+            signals=tuple(signals),
+            counter_signal=counter,
+            checksum_signal=checksum,
+        )
+
+    # -- lookup ---------------------------------------------------------------------------
+
+    @property
+    def frames(self) -> tuple[FrameSpec, ...]:
+        """All frames of the database, in DBC order."""
+        return tuple(self._by_name.values())
+
+    @property
+    def keys(self) -> frozenset[int]:
+        """Frame keys (see :func:`frame_key`) of all frames in the database."""
+        return frozenset(self._by_key)
+
+    def lookup(self, arbitration_id: int, is_extended: bool = False) -> FrameSpec | None:
+        """Return the frame with this identifier, or None when it is not in the database."""
+        return self._by_key.get(frame_key(arbitration_id, is_extended))
+
+    def frame(self, name: str) -> FrameSpec:
+        """Return the frame called ``name``; raises :class:`DbcError` when there is none."""
+        try:
+            return self._by_name[name]
+        except KeyError:
+            raise DbcError(f"{self.path}: no message named {name!r}") from None
+
+    def signal(self, name: str) -> SignalSpec:
+        """Return the signal called ``name`` (in any frame); raises :class:`DbcError`."""
+        try:
+            return self._signals[name]
+        except KeyError:
+            raise DbcError(f"{self.path}: no signal named {name!r}") from None
+
+    # -- decoding -------------------------------------------------------------------------
+
+    def decode(
+        self,
+        arbitration_id: int,
+        data: bytes | bytearray,
+        is_extended: bool = False,
+        check_e2e: bool = True,
+    ) -> dict[str, float | int]:
+        """Decode a payload of a known frame into ``{signal: SI value}``.
+
+        Values are in SI (see the module table); counters, checksums, states and flags stay
+        integers (choices are not converted to strings). Raises :class:`FrameDecodeError`
+        with ``reason`` ``"unknown"`` (id not in the DBC), ``"dlc"`` (length differs from
+        the DBC), ``"checksum"`` (E2E checksum wrong; not checked when ``check_e2e`` is
+        False) or ``"payload"``.
+        """
+        key = frame_key(arbitration_id, is_extended)
+        spec = self._by_key.get(key)
+        if spec is None:
+            raise FrameDecodeError(f"{format_frame_key(key)}: not in the DBC", "unknown")
+        if len(data) != spec.length:
+            raise FrameDecodeError(
+                f"{spec.name}: DLC {len(data)} bytes, expected {spec.length}", "dlc"
+            )
+        if check_e2e and spec.checksum_signal is not None and crc8_sae_j1850(data[1:]) != data[0]:
+            raise FrameDecodeError(
+                f"{spec.name}: checksum 0x{data[0]:02X}, expected "
+                f"0x{crc8_sae_j1850(data[1:]):02X}",
+                "checksum",
+            )
+        try:
+            values = self._messages[key].decode(
+                bytes(data), decode_choices=False, scaling=True, allow_excess=False
+            )
+        except Exception as err:  # cantools DecodeError, ValueError, ...
+            raise FrameDecodeError(f"{spec.name}: cannot decode: {err}", "payload") from err
+        out: dict[str, float | int] = dict(values)  # type: ignore[arg-type]
+        for name, factor in self._factors[key]:
+            out[name] = out[name] * factor
+        return out
+
+    def decode_message(self, msg: can.Message) -> tuple[FrameSpec, dict[str, float | int]]:
+        """Decode a python-can data frame; returns its spec and ``{signal: SI value}``.
+
+        Raises :class:`FrameDecodeError` like :meth:`decode` (also for error/remote frames,
+        reason ``"unknown"``).
+        """
+        if msg.is_error_frame or msg.is_remote_frame:
+            raise FrameDecodeError("error and remote frames carry no signals", "unknown")
+        values = self.decode(msg.arbitration_id, msg.data, msg.is_extended_id)
+        return self._by_key[frame_key(msg.arbitration_id, msg.is_extended_id)], values
+
+    # -- encoding -------------------------------------------------------------------------
+
+    def encode(
+        self, name: str, values: Mapping[str, float], counter: int | None = None
+    ) -> bytes:
+        """Encode SI ``values`` (every signal of frame ``name``) into its payload.
+
+        For E2E frames the checksum is computed here (do not pass it) and the counter is
+        taken from ``counter`` (0..15) unless ``values`` holds it. Raises
+        :class:`EncodeError` for unknown or missing signals, NaN/inf, values outside the DBC
+        range and bad counters.
+        """
+        spec = self.frame(name)
+        message = self._messages[spec.key]
+        bus_values: dict[str, float] = {}
+        given = dict(values)
+        if spec.checksum_signal is not None:
+            if spec.checksum_signal in given:
+                raise EncodeError(f"{name}: the checksum is computed, do not pass it")
+            given[spec.checksum_signal] = 0
+        if counter is not None:
+            if spec.counter_signal is None:
+                raise EncodeError(f"{name}: has no rolling counter")
+            given[spec.counter_signal] = counter
+        if spec.counter_signal is not None and spec.counter_signal in given:
+            cnt = given[spec.counter_signal]
+            if isinstance(cnt, bool) or not isinstance(cnt, int) or not 0 <= cnt <= 15:
+                raise EncodeError(f"{name}: counter must be an int 0..15, got {cnt!r}")
+        for sig_name, value in given.items():
+            sig = self._signals.get(sig_name)
+            if sig is None or sig_name not in {s.name for s in spec.signals}:
+                raise EncodeError(f"{name}: unknown signal {sig_name!r}")
+            try:
+                number = float(value)
+            except (TypeError, ValueError) as err:
+                raise EncodeError(f"{name}.{sig_name}: not a number: {value!r}") from err
+            if not math.isfinite(number):
+                raise EncodeError(f"{name}.{sig_name}: value {number} is not finite")
+            bus_values[sig_name] = number / sig.factor if sig.factor != 1.0 else value
+        try:
+            data = bytearray(message.encode(bus_values, scaling=True, strict=True))
+        except KeyError as err:
+            raise EncodeError(f"{name}: missing signal {err}") from err
+        except Exception as err:  # cantools EncodeError, ValueError
+            raise EncodeError(f"{name}: {err}") from err
+        if spec.checksum_signal is not None:
+            data[0] = crc8_sae_j1850(data[1:])
+        return bytes(data)
+
+    def make_message(
+        self,
+        name: str,
+        values: Mapping[str, float],
+        counter: int | None = None,
+        timestamp: float = 0.0,
+    ) -> can.Message:
+        """Encode frame ``name`` like :meth:`encode` and wrap it into a :class:`can.Message`.
+
+        ``timestamp`` [s] is copied into the message (bus time base).
+        """
+        spec = self.frame(name)
+        return can.Message(
+            arbitration_id=spec.frame_id,
+            is_extended_id=spec.is_extended,
+            data=self.encode(name, values, counter),
+            timestamp=timestamp,
+        )
+
+
+class PumpRequestCodec:
+    """Encode and verify the E2E-protected ``PumpRequest`` frame (pressure in Pa).
+
+    ``max_pressure`` [Pa] is the largest pressure :meth:`encode` accepts (default: the DBC
+    maximum of ``PumpReq_Pressure``, 60 bar); it must not exceed the DBC maximum.
+    ``resolution`` is 100 Pa (0.001 bar). Raises :class:`clutch_ros.errors.ConfigError` for a
+    bad ``max_pressure``.
+    """
+
+    MESSAGE = "PumpRequest"
+    PRESSURE = "PumpReq_Pressure"
+
+    def __init__(self, db: RigDatabase | None = None, max_pressure: float | None = None) -> None:
+        self.db = db if db is not None else RigDatabase()
+        self.spec = self.db.frame(self.MESSAGE)
+        if not self.spec.e2e or self.spec.counter_signal is None:
+            raise DbcError(f"{self.db.path}: {self.MESSAGE} is not E2E protected")
+        sig = self.db.signal(self.PRESSURE)
+        if sig.maximum is None or sig.minimum != 0.0:
+            raise DbcError(f"{self.db.path}: {self.PRESSURE} must have the range [0|max]")
+        self.resolution = sig.resolution
+        dbc_max = sig.maximum
+        if max_pressure is None:
+            max_pressure = dbc_max
+        if not (math.isfinite(max_pressure) and 0.0 < max_pressure <= dbc_max + 1e-6):
+            raise ConfigError(
+                f"pump max pressure must be in (0, {dbc_max:.0f}] Pa, got {max_pressure!r}"
+            )
+        #: largest raw value that does not exceed ``max_pressure``
+        self.max_raw = math.floor(max_pressure / self.resolution + 1e-9)
+        #: largest encodable pressure [Pa] (``max_pressure`` rounded down to the resolution)
+        self.max_pressure = self.max_raw * self.resolution
+
+    def quantize(self, pressure: float) -> float:
+        """Return the representable pressure [Pa] nearest to ``pressure``, within [0, max].
+
+        NaN maps to 0 Pa.
+        """
+        if math.isnan(pressure):
+            return 0.0
+        if pressure >= self.max_pressure:
+            return self.max_pressure
+        raw = max(0, min(self.max_raw, round(pressure / self.resolution)))
+        return raw * self.resolution
+
+    def encode(self, pressure: float, counter: int, timestamp: float = 0.0) -> can.Message:
+        """Return a PumpRequest frame for ``pressure`` [Pa] and rolling ``counter`` (0..15).
+
+        The pressure is rounded to the 100 Pa resolution; the checksum is computed. Strict:
+        NaN/inf, negative or above ``max_pressure`` (beyond half a resolution step) and
+        counters outside 0..15 raise :class:`EncodeError`.
+        """
+        try:
+            value = float(pressure)
+        except (TypeError, ValueError) as err:
+            raise EncodeError(f"pump pressure is not a number: {pressure!r}") from err
+        if not math.isfinite(value):
+            raise EncodeError(f"pump pressure {value} Pa is not finite")
+        if value < 0.0 or value > self.max_pressure + 0.5 * self.resolution:
+            raise EncodeError(
+                f"pump pressure {value:.1f} Pa outside [0, {self.max_pressure:.0f}] Pa"
+            )
+        quantized = self.quantize(value)
+        return self.db.make_message(
+            self.MESSAGE, {self.PRESSURE: quantized}, counter=counter, timestamp=timestamp
+        )
+
+    def decode(self, frame: can.Message | bytes | bytearray) -> tuple[float, int, bool]:
+        """Decode a PumpRequest into ``(pressure [Pa], counter, checksum_ok)``.
+
+        Raises :class:`FrameDecodeError` when ``frame`` is a message with another identifier
+        or the payload has the wrong length.
+        """
+        if isinstance(frame, can.Message):
+            if (
+                frame.is_error_frame
+                or frame.is_remote_frame
+                or frame_key(frame.arbitration_id, frame.is_extended_id) != self.spec.key
+            ):
+                raise FrameDecodeError(
+                    f"not a {self.MESSAGE} frame: {format_frame_key(frame.arbitration_id)}",
+                    "unknown",
+                )
+            data = bytes(frame.data)
+        else:
+            data = bytes(frame)
+        values = self.db.decode(
+            self.spec.frame_id, data, self.spec.is_extended, check_e2e=False
+        )
+        checksum_ok = crc8_sae_j1850(data[1:]) == data[0]
+        assert self.spec.counter_signal is not None
+        return float(values[self.PRESSURE]), int(values[self.spec.counter_signal]), checksum_ok

@@ -1,0 +1,172 @@
+"""Frame counters, per-identifier rates and a rate limiter for log/diagnostic reporting.
+
+Nothing here takes a lock: :class:`FrameCounters` is updated under the lock of its owner
+(:class:`clutch_ros.canbus.assembler.RigStateAssembler`). Times are seconds in whatever base
+the caller passes (bus time or a monotonic clock), never read from the system clock here.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+
+from clutch_ros.canbus.dbc import format_frame_key
+
+__all__ = [
+    "CounterSnapshot",
+    "FrameCounters",
+    "RateLimiter",
+    "classify_socketcan_error",
+]
+
+# SocketCAN error classes (linux/can/error.h), carried in the error frame's identifier.
+_CAN_ERR_CRTL = 0x00000004
+_CAN_ERR_BUSOFF = 0x00000040
+_CAN_ERR_CRTL_RX_OVERFLOW = 0x01
+_CAN_ERR_CRTL_TX_OVERFLOW = 0x02
+
+
+def classify_socketcan_error(arbitration_id: int, data: bytes | bytearray) -> tuple[bool, bool]:
+    """Return ``(bus_off, controller_overflow)`` for a SocketCAN-style error frame.
+
+    SocketCAN puts the error class into the identifier (``CAN_ERR_BUSOFF`` 0x40,
+    ``CAN_ERR_CRTL`` 0x04 with RX/TX overflow flags in byte 1). Other interfaces report error
+    frames with identifier 0, which classifies as neither.
+    """
+    bus_off = bool(arbitration_id & _CAN_ERR_BUSOFF)
+    overflow = bool(
+        arbitration_id & _CAN_ERR_CRTL
+        and len(data) > 1
+        and data[1] & (_CAN_ERR_CRTL_RX_OVERFLOW | _CAN_ERR_CRTL_TX_OVERFLOW)
+    )
+    return bus_off, overflow
+
+
+@dataclass(frozen=True)
+class CounterSnapshot:
+    """A consistent copy of the frame counters (all counts are numbers of frames).
+
+    Invariants: ``frames_total == error_frames + remote_frames + data_frames`` and
+    ``data_frames == decoded_frames + unknown_frames + decode_errors``. ``fd_frames`` counts
+    data and remote frames with the FD flag, whatever happened to them. ``dropped_frames``
+    is the sum of rolling-counter gaps of counter-carrying frames (a 4-bit counter sees at most 15
+    consecutive losses; a repeated counter is counted in ``counter_repeats`` instead).
+    ``bus_off_frames`` and ``controller_overflows`` are only counted for SocketCAN-style error
+    frames. ``per_id`` counts data and remote frames by frame key
+    (:func:`clutch_ros.canbus.dbc.frame_key`); ``unknown_ids`` holds the keys of data frames
+    not in the DBC.
+    """
+
+    frames_total: int = 0
+    data_frames: int = 0
+    decoded_frames: int = 0
+    unknown_frames: int = 0
+    decode_errors: int = 0
+    decode_errors_by_reason: dict[str, int] = field(default_factory=dict)
+    error_frames: int = 0
+    bus_off_frames: int = 0
+    controller_overflows: int = 0
+    remote_frames: int = 0
+    fd_frames: int = 0
+    dropped_frames: int = 0
+    counter_repeats: int = 0
+    listener_errors: int = 0
+    per_id: dict[int, int] = field(default_factory=dict)
+    unknown_ids: frozenset[int] = frozenset()
+
+    def unknown_ids_text(self, limit: int = 20) -> str:
+        """Return up to ``limit`` unknown identifiers as text: ``0x123, 0x18EBFF00x, ...``."""
+        keys = sorted(self.unknown_ids)
+        text = ", ".join(format_frame_key(k) for k in keys[:limit])
+        if len(keys) > limit:
+            text += f", ... ({len(keys) - limit} more)"
+        return text
+
+
+class FrameCounters:
+    """Mutable frame counters; the owner serialises access (see module docstring)."""
+
+    def __init__(self) -> None:
+        self.frames_total = 0
+        self.data_frames = 0
+        self.decoded_frames = 0
+        self.unknown_frames = 0
+        self.decode_errors: Counter[str] = Counter()
+        self.error_frames = 0
+        self.bus_off_frames = 0
+        self.controller_overflows = 0
+        self.remote_frames = 0
+        self.fd_frames = 0
+        self.dropped_frames = 0
+        self.counter_repeats = 0
+        self.listener_errors = 0
+        self.per_id: Counter[int] = Counter()
+        self.unknown_ids: set[int] = set()
+        self._rate_base: tuple[float, dict[int, int], int] | None = None
+
+    def snapshot(self) -> CounterSnapshot:
+        """Return an immutable copy of the counters."""
+        return CounterSnapshot(
+            frames_total=self.frames_total,
+            data_frames=self.data_frames,
+            decoded_frames=self.decoded_frames,
+            unknown_frames=self.unknown_frames,
+            decode_errors=sum(self.decode_errors.values()),
+            decode_errors_by_reason=dict(self.decode_errors),
+            error_frames=self.error_frames,
+            bus_off_frames=self.bus_off_frames,
+            controller_overflows=self.controller_overflows,
+            remote_frames=self.remote_frames,
+            fd_frames=self.fd_frames,
+            dropped_frames=self.dropped_frames,
+            counter_repeats=self.counter_repeats,
+            listener_errors=self.listener_errors,
+            per_id=dict(self.per_id),
+            unknown_ids=frozenset(self.unknown_ids),
+        )
+
+    def rates(self, now: float) -> tuple[float, dict[int, float]]:
+        """Return ``(total [frames/s], {frame key: frames/s})`` since the previous call.
+
+        ``now`` [s] is any monotonic time. The first call only sets the reference and
+        returns zeros. Meant for one caller (the 1 Hz diagnostics).
+        """
+        base = self._rate_base
+        self._rate_base = (now, dict(self.per_id), self.frames_total)
+        if base is None or now <= base[0]:
+            return 0.0, {}
+        then, counts, total = base
+        dt = now - then
+        per_id = {
+            key: (count - counts.get(key, 0)) / dt
+            for key, count in self.per_id.items()
+            if count != counts.get(key, 0)
+        }
+        return (self.frames_total - total) / dt, per_id
+
+
+class RateLimiter:
+    """Let an event through at most once per ``interval`` [s]; count the ones held back.
+
+    ``allow(now)`` returns True (and the number suppressed since the last allowed event via
+    :attr:`suppressed_at_last_allow`) when at least ``interval`` seconds passed since the last
+    allowed event. ``now`` is any monotonic time [s].
+    """
+
+    def __init__(self, interval: float) -> None:
+        if not interval >= 0.0:
+            raise ValueError(f"interval must be >= 0 s, got {interval!r}")
+        self.interval = interval
+        self._last: float | None = None
+        self.suppressed = 0
+        self.suppressed_at_last_allow = 0
+
+    def allow(self, now: float) -> bool:
+        """Return True when the event may be reported now, else count it as suppressed."""
+        if self._last is None or now - self._last >= self.interval:
+            self._last = now
+            self.suppressed_at_last_allow = self.suppressed
+            self.suppressed = 0
+            return True
+        self.suppressed += 1
+        return False

@@ -1,0 +1,1 @@
+"""Tests of clutch_ros.canbus (pure python-can/cantools, no ROS)."""

@@ -1,0 +1,232 @@
+"""RigStateAssembler: frames from a real python-can bus into RigSamples, ages, counters."""
+
+import math
+import threading
+import time
+
+import can
+import pytest
+
+from clutch_ros.canbus.assembler import RigStateAssembler
+from clutch_ros.errors import ConfigError
+
+PUMP_OK = {
+    "PumpSts_State": 2, "PumpSts_ActualPressure": 20.5e5, "PumpSts_Current": 7.25,
+    "PumpSts_FltOverCurrent": 0, "PumpSts_FltOverTemp": 1, "PumpSts_FltUnderVoltage": 0,
+    "PumpSts_FltSensor": 1, "PumpSts_FltReqTimeout": 0, "PumpSts_FltReqChecksum": 0,
+    "PumpSts_FltReqCounter": 0,
+}
+
+
+def rig_frames(db, t=0.0, counter=0, valid=1):
+    """One frame of every rig message with known values (SI), timestamp ``t`` [s]."""
+    mk = db.make_message
+    return [
+        mk("RigFast", {"ActuatingPressure": 20e5, "MeasuredTorque": 456.7,
+                       "MeasuredTorqueValid": valid}, counter=counter, timestamp=t),
+        mk("RigSpeed", {"InputShaftSpeed": 5.236, "OutputShaftSpeed": -0.5},
+           counter=counter, timestamp=t),
+        mk("RigTemperatures", {"LamellaTemperature": 85.25, "OilTemperature": 40.5},
+           timestamp=t),
+        mk("PumpStatus", PUMP_OK, counter=counter, timestamp=t),
+        mk("FlexiForceFront", {f"FF_Front{i}": 0.5 * i for i in range(1, 5)}, timestamp=t),
+        mk("FlexiForceRear", {f"FF_Rear{i}": 0.1 * i for i in range(1, 5)}, timestamp=t),
+        mk("WheelSpeeds", {"WheelSpeedFL": 10.0, "WheelSpeedFR": 10.5, "WheelSpeedRL": -3.0,
+                           "WheelSpeedRR": 0.0}, timestamp=t),
+        mk("TorqueRequest", {"TorqueRequest": 300.0}, timestamp=t),
+    ]
+
+
+def assert_rig_values(sample):
+    assert sample.actuating_pressure == pytest.approx(20e5)
+    assert sample.measured_torque == pytest.approx(456.7)
+    assert sample.has_measured_torque
+    assert sample.input_speed == pytest.approx(5.236, abs=1e-4)
+    assert sample.output_speed == pytest.approx(-0.5, abs=1e-4)
+    assert sample.slip_speed == pytest.approx(5.736, abs=2e-4)
+    assert sample.lamella_temperature == pytest.approx(85.25)
+    assert sample.oil_temperature == pytest.approx(40.5)
+    assert sample.pump_current == pytest.approx(7.25)
+    assert sample.pump_pressure == pytest.approx(20.5e5)
+    assert sample.pump_state == 2
+    assert sample.pump_faults == 0b1010
+    assert sample.ff_voltages == pytest.approx([0.5, 1.0, 1.5, 2.0, 0.1, 0.2, 0.3, 0.4])
+    assert sample.wheel_speeds == pytest.approx([10.0, 10.5, -3.0, 0.0], abs=0.006)
+    assert sample.torque_request == pytest.approx(300.0)
+
+
+def wait_for(predicate, timeout=5.0):
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError("timed out")
+        time.sleep(0.002)
+
+
+def test_frames_over_virtual_bus_with_notifier(db, channel):
+    assembler = RigStateAssembler(db)
+    seen = can.BufferedReader()
+    with can.Bus(interface="virtual", channel=channel) as tx, \
+            can.Bus(interface="virtual", channel=channel) as rx:
+        notifier = can.Notifier(rx, [assembler, seen], timeout=0.05)
+        try:
+            for msg in rig_frames(db):
+                tx.send(msg)
+            wait_for(lambda: assembler.counters().decoded_frames == 8)
+        finally:
+            notifier.stop()
+    stamps = []
+    while (msg := seen.get_message(0.0)) is not None:
+        stamps.append(msg.timestamp)
+    sample = assembler.snapshot()  # aged against the newest frame: all fresh
+    assert_rig_values(sample)
+    assert sample.stale_mask == 0 and sample.stale == []
+    assert assembler.snapshot(time.time() + 1.0).stale_mask == 0xFF
+    assert sample.stamp == max(stamps)  # the virtual bus stamps frames on send
+    counters = assembler.counters()
+    assert counters.frames_total == counters.data_frames == 8
+    assert counters.unknown_frames == counters.decode_errors == counters.dropped_frames == 0
+
+
+def test_nothing_received_yet(db):
+    sample = RigStateAssembler(db).snapshot(100.0)
+    assert sample.stamp is None
+    assert math.isnan(sample.actuating_pressure) and math.isnan(sample.slip_speed)
+    assert math.isnan(sample.pump_current) and not sample.has_measured_torque
+    assert sample.torque_request == 0.0
+    assert sample.ff_voltages == [] and sample.wheel_speeds == []
+    # required groups are stale until received; optional ones are not
+    assert sample.stale_mask == 0b1111
+    assert sample.stale == ["pressure_torque", "shaft_speeds", "temperatures", "pump_status"]
+    assert sample.ages["wheel_speeds"] == math.inf
+
+
+def test_stale_detection_with_injected_time(db):
+    assembler = RigStateAssembler(db)
+    for msg in rig_frames(db, t=10.0):
+        assembler.feed(msg)
+    assert assembler.snapshot(10.009).stale_mask == 0
+    sample = assembler.snapshot(10.011)  # 1 ms frames: 10 ms max age
+    assert sample.stale == ["pressure_torque", "shaft_speeds"]
+    assert sample.stale_mask == 0b11
+    assert not sample.has_measured_torque  # a stale measurement is no measurement
+    assert sample.ages["pressure_torque"] == pytest.approx(0.011)
+    assert sample.stamp == 10.0
+    sample = assembler.snapshot(10.06)  # 10 ms frames: 50 ms
+    assert sample.stale_mask == 0b11111011
+    sample = assembler.snapshot(10.6)  # 100 ms frames: 500 ms
+    assert sample.stale_mask == 0xFF
+    assert len(sample.stale) == 8
+    # values are kept while stale
+    assert sample.actuating_pressure == pytest.approx(20e5)
+    # fresh fast frames clear only their bits
+    for msg in rig_frames(db, t=10.6, counter=1)[:2]:
+        assembler.feed(msg)
+    assert assembler.snapshot(10.6).stale_mask == 0xFC
+    # None: age against the newest frame (log replay)
+    assert assembler.snapshot().stamp == 10.6
+
+
+def test_configurable_ages_and_required_groups(db):
+    assembler = RigStateAssembler(
+        db, max_ages={"pressure_torque": 0.5}, required=["pressure_torque", "wheel_speeds"]
+    )
+    sample = assembler.snapshot(0.0)
+    assert sample.stale == ["pressure_torque", "wheel_speeds"]
+    for msg in rig_frames(db, t=1.0)[:2]:
+        assembler.feed(msg)
+    assert assembler.snapshot(1.4).stale == ["shaft_speeds", "wheel_speeds"]
+    with pytest.raises(ConfigError):
+        RigStateAssembler(db, max_ages={"nope": 1.0})
+    with pytest.raises(ConfigError):
+        RigStateAssembler(db, max_ages={"temperatures": 0.0})
+    with pytest.raises(ConfigError):
+        RigStateAssembler(db, required=["bogus"])
+
+
+def test_torque_validity_and_partial_flexiforce(db):
+    assembler = RigStateAssembler(db)
+    frames = rig_frames(db, t=1.0, valid=0)
+    assembler.feed(frames[0])
+    assembler.feed(frames[4])  # front FlexiForce only
+    sample = assembler.snapshot(1.0)
+    assert not sample.has_measured_torque
+    assert sample.measured_torque == pytest.approx(456.7)
+    assert sample.ff_voltages[:4] == pytest.approx([0.5, 1.0, 1.5, 2.0])
+    assert all(math.isnan(v) for v in sample.ff_voltages[4:])
+
+
+def test_dropped_frames_from_rolling_counter(db):
+    assembler = RigStateAssembler(db)
+    t = 0.0
+    for counter in (14, 15, 0, 3, 4, 4, 5):  # 2 lost (1, 2), one repeat
+        t += 0.001
+        assembler.feed(rig_frames(db, t=t, counter=counter)[0])
+    counters = assembler.counters()
+    assert counters.dropped_frames == 2
+    assert counters.counter_repeats == 1
+    # after a silence longer than 16 cycles the counter cannot tell: not counted
+    assembler.feed(rig_frames(db, t=t + 1.0, counter=11)[0])
+    assert assembler.counters().dropped_frames == 2
+
+
+def test_rates_per_id(db):
+    assembler = RigStateAssembler(db)
+    assert assembler.rates(0.0) == (0.0, {})
+    for i in range(10):
+        assembler.feed(rig_frames(db, t=i * 0.001, counter=i % 16)[0])
+    total, per_id = assembler.rates(2.0)
+    assert total == pytest.approx(5.0)
+    assert per_id == {0x100: pytest.approx(5.0)}
+    assert assembler.rates(3.0) == (0.0, {})
+
+
+def test_concurrent_snapshots_while_notifier_feeds(db, channel):
+    assembler = RigStateAssembler(db)
+    n = 3000
+    errors = []
+    stop = threading.Event()
+
+    def reader():
+        try:
+            while not stop.is_set():
+                sample = assembler.snapshot(time.time())
+                if not math.isnan(sample.input_speed):
+                    assert sample.slip_speed == pytest.approx(
+                        sample.input_speed - sample.output_speed)
+        except Exception as err:  # reported below
+            errors.append(err)
+
+    thread = threading.Thread(target=reader)
+    with can.Bus(interface="virtual", channel=channel) as tx, \
+            can.Bus(interface="virtual", channel=channel) as rx:
+        notifier = can.Notifier(rx, [assembler], timeout=0.05)
+        thread.start()
+        try:
+            for i in range(n):
+                tx.send(rig_frames(db, counter=(i // 2) % 16)[i % 2])
+            wait_for(lambda: assembler.counters().frames_total == n)
+        finally:
+            stop.set()
+            thread.join()
+            notifier.stop()
+    assert errors == []
+    counters = assembler.counters()
+    assert counters.decoded_frames == n and counters.dropped_frames == 0
+
+
+def test_socketcan_error_classes_and_listener_errors(db):
+    overflow = can.Message(arbitration_id=0x04, is_error_frame=True,
+                           data=b"\x00\x01" + bytes(6))
+    bus_off = can.Message(arbitration_id=0x40, is_error_frame=True, data=bytes(8))
+    plain = RigStateAssembler(db)
+    socketcan = RigStateAssembler(db, socketcan_error_frames=True)
+    for assembler in (plain, socketcan):
+        for msg in (overflow, bus_off, bus_off):
+            assembler.feed(msg)
+        assembler.on_error(RuntimeError("driver hiccup"))
+    assert plain.counters().error_frames == socketcan.counters().error_frames == 3
+    assert (plain.counters().bus_off_frames, plain.counters().controller_overflows) == (0, 0)
+    assert (socketcan.counters().bus_off_frames,
+            socketcan.counters().controller_overflows) == (2, 1)
+    assert plain.counters().listener_errors == 1

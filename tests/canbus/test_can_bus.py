@@ -1,0 +1,292 @@
+"""BusConfig, open_bus and ReconnectingBus over a python-can interface with a pluggable adapter."""
+
+import logging
+import threading
+import time
+import uuid
+
+import can
+import can.interfaces
+import pytest
+
+from clutch_ros.canbus.assembler import RigStateAssembler
+from clutch_ros.canbus.bus import (
+    BusConfig,
+    LinkState,
+    ReconnectingBus,
+    open_bus,
+    parse_filters,
+)
+from clutch_ros.canbus.errors import BusConfigError, BusUnavailable
+from clutch_ros.errors import ConfigError
+
+from . import flaky_bus
+from .flaky_bus import ADAPTERS, Adapter
+
+
+class FakeClock:
+    def __init__(self):
+        self.t = 1000.0
+
+    def __call__(self):
+        return self.t
+
+
+@pytest.fixture
+def adapter(monkeypatch):
+    """Register the ``flaky`` interface and return (config, adapter, wire channel)."""
+    monkeypatch.setitem(can.interfaces.BACKENDS, "flaky", (flaky_bus.__name__, "FlakyBus"))
+    name = f"flaky-{uuid.uuid4().hex}"
+    ADAPTERS[name] = Adapter()
+    yield BusConfig(interface="flaky", channel=name), ADAPTERS[name], f"{name}-wire"
+    del ADAPTERS[name]
+
+
+def test_bus_config_validation():
+    with pytest.raises(BusConfigError, match="socketcan"):
+        BusConfig(interface="nonexistent")
+    with pytest.raises(ConfigError):
+        BusConfig(interface="virtual", bitrate=-5)
+    with pytest.raises(BusConfigError):
+        BusConfig(interface="virtual", bitrate=True)
+    with pytest.raises(BusConfigError):
+        BusConfig(interface="virtual", data_bitrate=2_000_000)
+    with pytest.raises(BusConfigError):
+        BusConfig(interface="virtual", extra={"channel": "x"})
+    with pytest.raises(BusConfigError):
+        BusConfig(interface="udp_multicast", channel="239.0.0.1", receive_own_messages=True)
+    with pytest.raises(BusConfigError):
+        BusConfig(interface="virtual", can_filters=["0x100"])
+    config = BusConfig(interface="socketcan", channel="can0", bitrate=1_000_000,
+                       can_filters=["0x100:0x7F0", {"can_id": 0x80, "can_mask": 0x7FE}],
+                       extra={"local_loopback": False})
+    assert config.kwargs() == {
+        "interface": "socketcan", "channel": "can0", "receive_own_messages": False,
+        "bitrate": 1_000_000, "local_loopback": False,
+        "can_filters": [{"can_id": 0x100, "can_mask": 0x7F0},
+                        {"can_id": 0x80, "can_mask": 0x7FE}],
+    }
+
+
+def test_parse_filters():
+    assert parse_filters(["0x18EBFF00:0x1FFFFFFF:x"]) == (
+        {"can_id": 0x18EBFF00, "can_mask": 0x1FFFFFFF, "extended": True},)
+    for bad in (["1:2:3"], ["zz:1"], [{"can_id": 1}], [{"can_id": 1 << 30, "can_mask": 0}],
+                [{"can_id": 1, "can_mask": 1, "bogus": 1}], [42]):
+        with pytest.raises(BusConfigError):
+            parse_filters(bad)
+
+
+def test_open_bus_applies_filters(channel):
+    config = BusConfig(interface="virtual", channel=channel, can_filters=["0x100:0x7FF"])
+    with open_bus(config) as rx, can.Bus(interface="virtual", channel=channel) as tx:
+        tx.send(can.Message(arbitration_id=0x200, data=b"\x01"))
+        tx.send(can.Message(arbitration_id=0x100, data=b"\x02"))
+        msg = rx.recv(1.0)
+        assert msg.arbitration_id == 0x100
+        assert rx.recv(0.05) is None
+
+
+def test_open_bus_wraps_errors(adapter):
+    config, adapt, _ = adapter
+    adapt.plugged = False
+    with pytest.raises(BusUnavailable, match=config.channel) as info:
+        open_bus(config)
+    assert isinstance(info.value.__cause__, can.CanInitializationError)
+    with pytest.raises(BusUnavailable, match="clutchtest9"):
+        open_bus(BusConfig(interface="socketcan", channel="clutchtest9"))
+    with pytest.raises(BusUnavailable, match="struct.error|error"):  # any driver error
+        open_bus(BusConfig(interface="udp_multicast", channel="239.1.2.3",
+                           extra={"hop_limit": -3}))
+
+
+def test_open_bus_rejected_arguments(monkeypatch):
+    monkeypatch.setitem(can.interfaces.BACKENDS, "picky", (flaky_bus.__name__, "PickyBus"))
+    with pytest.raises(BusConfigError, match="invalid bus arguments") as info:
+        open_bus(BusConfig(interface="picky", channel="x"))
+    assert isinstance(info.value.__cause__, TypeError)
+
+
+def drive(bus, clock, seconds, step=0.05):
+    """Advance the fake clock in steps, polling recv(0) like a Notifier thread would."""
+    for _ in range(round(seconds / step)):
+        clock.t += step
+        bus.recv(0)
+
+
+def test_backoff_reconnect_and_no_storm(adapter, caplog):
+    config, adapt, _ = adapter
+    clock = FakeClock()
+    adapt.clock = clock
+    events = []
+    caplog.set_level(logging.DEBUG, logger="clutch_ros.canbus.bus")
+    bus = ReconnectingBus(config, clock=clock, sleep=lambda s: None, backoff_initial=0.1,
+                          backoff_max=1.0, report_interval=2.0, on_event=events.append)
+    try:
+        assert bus.link_state == LinkState.UP
+        adapt.plugged = False  # pull the USB adapter
+        assert bus.recv(0) is None  # OSError inside recv: handled, link down
+        assert bus.link_state == LinkState.DOWN
+        t_down = clock.t
+        del adapt.open_attempts[:]
+        drive(bus, clock, 8.0, step=0.01)
+        gaps = [round(b - a, 2) for a, b in zip([t_down, *adapt.open_attempts],
+                                                adapt.open_attempts)]
+        # exponential back-off, capped; the 10 ms polling step is the only slack
+        assert gaps[:5] == pytest.approx([0.1, 0.2, 0.4, 0.8, 1.0], abs=0.011)
+        assert gaps[4:] == pytest.approx([1.0] * len(gaps[4:]), abs=0.011)
+        assert bus.status().failed_attempts == len(gaps)
+        adapt.plugged = True
+        drive(bus, clock, 1.1)
+        assert bus.link_state == LinkState.UP
+        assert [(e.old, e.new) for e in events] == [
+            (LinkState.CONNECTING, LinkState.UP), (LinkState.UP, LinkState.DOWN),
+            (LinkState.DOWN, LinkState.UP)]
+        assert "receive failed" in events[1].reason and "No such device" in events[1].reason
+        warnings = [r for r in caplog.records if r.levelno >= logging.WARNING]
+        assert len(gaps) >= 10
+        assert 1 <= len(warnings) <= 8 / 2.0 + 2  # rate limited: ~1 per report_interval
+        assert bus.connects == 2 and bus.disconnects == 1
+    finally:
+        bus.shutdown()
+    assert bus.link_state == LinkState.CLOSED
+    with pytest.raises(can.CanOperationError):
+        bus.recv(0)
+
+
+def test_unavailable_at_start_never_raises(adapter):
+    config, adapt, _ = adapter
+    adapt.plugged = False
+    clock = FakeClock()
+    with ReconnectingBus(config, clock=clock, sleep=lambda s: None) as bus:
+        assert bus.link_state == LinkState.DOWN
+        assert bus.recv(0) is None
+        assert not bus.try_send(can.Message(arbitration_id=1))
+        status = bus.status()
+        assert status.state == LinkState.DOWN and status.bus_state == "ERROR"
+        assert "not found" in status.reason and status.next_attempt_in == pytest.approx(0.1)
+        adapt.plugged = True
+        clock.t += 0.1
+        assert bus.try_send(can.Message(arbitration_id=1))
+        assert bus.link_state == LinkState.UP
+
+
+def test_send_failures_take_link_down(adapter):
+    config, adapt, wire = adapter
+    clock = FakeClock()
+    with ReconnectingBus(config, clock=clock, sleep=lambda s: None, max_send_failures=3) as bus, \
+            can.Bus(interface="virtual", channel=wire) as peer:
+        msg = can.Message(arbitration_id=0x80, data=bytes(8))
+        bus.send(msg)
+        assert peer.recv(1.0).arbitration_id == 0x80
+        adapt.fail_send = True
+        with pytest.raises(BusUnavailable) as info:
+            bus.send(msg)
+        assert isinstance(info.value.__cause__, can.CanOperationError)
+        assert not bus.try_send(msg)
+        assert bus.link_state == LinkState.UP  # 2 failures: still up
+        assert not bus.try_send(msg)
+        assert bus.link_state == LinkState.DOWN  # the 3rd closes and schedules a reopen
+        with pytest.raises(BusUnavailable, match="down"):
+            bus.send(msg)
+        adapt.fail_send = False
+        clock.t += 0.1
+        assert bus.try_send(msg)
+        assert bus.link_state == LinkState.UP and bus.send_failures == 4
+
+
+def test_bus_off_from_controller_state(adapter):
+    config, adapt, _ = adapter
+    clock = FakeClock()
+    with ReconnectingBus(config, clock=clock, sleep=lambda s: None,
+                         state_poll_interval=0.5) as bus:
+        adapt.state = can.BusState.ERROR
+        clock.t += 0.1
+        bus.recv(0)
+        assert bus.link_state == LinkState.UP  # not polled yet
+        clock.t += 0.5
+        bus.recv(0)
+        assert bus.link_state == LinkState.DOWN and "bus-off" in bus.status().reason
+        clock.t += 0.1
+        bus.recv(0)
+        assert bus.link_state == LinkState.UP and bus.state == can.BusState.ACTIVE
+
+
+def test_bus_off_error_frame(adapter):
+    config, _, wire = adapter
+    clock = FakeClock()
+    with ReconnectingBus(config, clock=clock, sleep=lambda s: None,
+                         socketcan_error_frames=True) as bus, \
+            can.Bus(interface="virtual", channel=wire) as peer:
+        peer.send(can.Message(arbitration_id=0x04, is_error_frame=True, data=bytes(8)))
+        assert bus.recv(1.0).is_error_frame
+        assert bus.link_state == LinkState.UP  # controller problem, not bus-off
+        peer.send(can.Message(arbitration_id=0x40, is_error_frame=True, data=bytes(8)))
+        assert bus.recv(1.0).is_error_frame  # the frame itself is still delivered
+        assert bus.link_state == LinkState.DOWN and bus.bus_off_frames == 1
+
+
+def test_notifier_survives_unplug_with_real_clock(adapter, db):
+    config, adapt, wire = adapter
+    assembler = RigStateAssembler(db)
+    bus = ReconnectingBus(config, backoff_initial=0.01, backoff_max=0.05)
+    peer = can.Bus(interface="virtual", channel=wire)
+    frame = db.make_message("TorqueRequest", {"TorqueRequest": 42.0})
+    notifier = can.Notifier(bus, [assembler], timeout=0.02)
+    try:
+        peer.send(frame)
+        deadline = time.monotonic() + 5
+        while assembler.counters().decoded_frames < 1 and time.monotonic() < deadline:
+            time.sleep(0.005)
+        adapt.plugged = False
+        time.sleep(0.3)
+        assert bus.link_state == LinkState.DOWN
+        adapt.plugged = True
+        deadline = time.monotonic() + 5
+        while bus.link_state != LinkState.UP and time.monotonic() < deadline:
+            time.sleep(0.005)
+        peer.send(frame)
+        while assembler.counters().decoded_frames < 2 and time.monotonic() < deadline:
+            time.sleep(0.005)
+        assert assembler.counters().decoded_frames == 2
+        assert notifier.exception is None and not notifier.stopped
+        assert bus.connects == 2
+    finally:
+        notifier.stop()
+        bus.shutdown()
+        peer.shutdown()
+
+
+def test_shutdown_wakes_a_waiting_receiver(adapter):
+    config, adapt, _ = adapter
+    adapt.plugged = False
+    bus = ReconnectingBus(config, backoff_initial=30.0, backoff_max=30.0)
+    result = []
+
+    def receive():
+        try:
+            result.append(bus.recv(10.0))
+        except can.CanOperationError as err:
+            result.append(err)
+
+    thread = threading.Thread(target=receive)
+    thread.start()
+    time.sleep(0.05)
+    start = time.monotonic()
+    bus.shutdown()
+    thread.join(2.0)
+    assert not thread.is_alive() and time.monotonic() - start < 1.0
+    assert isinstance(result[0], can.CanOperationError)
+
+
+def test_broken_event_callback_is_contained(adapter):
+    config, adapt, _ = adapter
+
+    def explode(event):
+        raise RuntimeError("callback bug")
+
+    clock = FakeClock()
+    with ReconnectingBus(config, clock=clock, sleep=lambda s: None, on_event=explode) as bus:
+        adapt.plugged = False
+        assert bus.recv(0) is None
+        assert bus.link_state == LinkState.DOWN
