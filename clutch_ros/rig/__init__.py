@@ -1,0 +1,58 @@
+"""The simulated one-motor clutch rig (no ROS): truth plant, pump, thermal model, sensors, CAN.
+
+Modules:
+    pump        :class:`PumpModel` — lag, rate limit, max pressure, the pressure "kick"
+    thermal     :class:`ThermalModel` — lamella heating from slip power, cooling to the oil
+    flexiforce  :class:`FlexiForceArray` — 4 front + 4 rear FlexiForce voltages
+    plant       :class:`RigPlant` — the truth plant producing :class:`RigSignals`
+    scenario    Tables 3–4 scripted runs, closed-loop runs, :func:`run_offline`
+    can_io      :class:`RigCanPort` — DBC frames out at their cycle times, pump requests in
+    simulator   :class:`RigSimulator` — plant + scenario + port at 1 kHz
+
+The ``rig_sim`` ROS node is a thin adapter around :class:`RigSimulator`. Units are SI
+(temperatures in °C) everywhere.
+"""
+
+from clutch_ros.rig.can_io import FrameScheduler, PumpRequestMonitor, RigCanPort
+from clutch_ros.rig.errors import RigConfigError, RigError
+from clutch_ros.rig.flexiforce import FlexiForceArray, FlexiForceParams
+from clutch_ros.rig.plant import NoiseParams, RigPlant, RigPlantParams, RigSignals
+from clutch_ros.rig.pump import PumpModel, PumpParams
+from clutch_ros.rig.scenario import (
+    ClosedLoopScenario,
+    Scenario,
+    ScriptedScenario,
+    closed_loop_run,
+    run_offline,
+    table3_run,
+    table4_run,
+)
+from clutch_ros.rig.simulator import RigSimulator, RunStats
+from clutch_ros.rig.thermal import ThermalModel, ThermalParams
+
+__all__ = [
+    "ClosedLoopScenario",
+    "FlexiForceArray",
+    "FlexiForceParams",
+    "FrameScheduler",
+    "NoiseParams",
+    "PumpModel",
+    "PumpParams",
+    "PumpRequestMonitor",
+    "RigCanPort",
+    "RigConfigError",
+    "RigError",
+    "RigPlant",
+    "RigPlantParams",
+    "RigSignals",
+    "RigSimulator",
+    "RunStats",
+    "Scenario",
+    "ScriptedScenario",
+    "ThermalModel",
+    "ThermalParams",
+    "closed_loop_run",
+    "run_offline",
+    "table3_run",
+    "table4_run",
+]
