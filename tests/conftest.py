@@ -19,10 +19,20 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
 os.environ.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
 
 
-@pytest.fixture
-def ros_env():
-    """Environment for child processes that take part in this run's ROS graph."""
+def _child_env() -> dict:
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
     env["PYTHONPATH"] = str(REPO) + os.pathsep + env.get("PYTHONPATH", "")
     return env
+
+
+@pytest.fixture
+def ros_env():
+    """Environment for child processes that take part in this run's ROS graph."""
+    return _child_env()
+
+
+@pytest.fixture(scope="module")
+def ros_env_module():
+    """Module-scoped :func:`ros_env` for expensive module fixtures."""
+    return _child_env()

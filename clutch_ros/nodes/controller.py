@@ -41,13 +41,14 @@ PARAMS = [
     ParamSpec("controller.rate", 100.0, "command publishing rate", "Hz", 1.0, 2000.0),
     ParamSpec("controller.min_pressure", 0.0, "lowest commanded pressure", "Pa", 0.0, 1e8),
     ParamSpec("controller.max_pressure", 40e5, "highest commanded pressure", "Pa", 0.0, 1e8),
-    ParamSpec("controller.pressure_rate_limit", 200e5, "maximum pressure slew", "Pa/s",
-              1.0, 1e10),
+    ParamSpec("controller.pressure_rate_limit", 90e5, "maximum pressure slew; below the pump's "
+              "kick threshold (about 100 bar/s, thesis 5.1.1) so steps do not overshoot",
+              "Pa/s", 1.0, 1e10),
     ParamSpec("controller.torque_ramp_rate", 4000.0, "maximum slew of the torque target "
               "(request ramping)", "N m/s", 1.0, 1e7),
     ParamSpec("controller.overshoot_margin", 0.05, "overshoot guard: pressure never above the "
               "steady-state inverse of (1 + margin) x request", "1", 0.0, 1.0),
-    ParamSpec("controller.spline_correction_gain", 1.0, "weight of the dynamic spline-friction "
+    ParamSpec("controller.spline_correction_gain", 0.5, "weight of the dynamic spline-friction "
               "correction (0 = steady-state inverse only)", "1", 0.0, 2.0),
     ParamSpec("controller.request_timeout", 0.5, "a torque request older than this is stale "
               "-> 0 Pa", "s", 0.001, 3600.0),
@@ -77,11 +78,13 @@ class ControllerNode(Node):
         self._counts = {"commands": 0, "limited": 0, "failsafe": 0, "bad_requests": 0}
         self._last_reason = ""
         self._pub = self.create_publisher(PressureCommand, "pressure_command", reliable_qos())
+        # Only the newest sample of each input matters: shallow queues, so a busy moment
+        # never leaves the controller working through a backlog of old samples.
         self.create_subscription(TorqueRequest, "torque_request", self._on_request,
-                                 reliable_qos())
+                                 reliable_qos(depth=5))
         self.create_subscription(RigState, "rig_state", self._on_rig, sensor_qos())
         self.create_subscription(ClutchEstimate, "clutch_estimate", self._on_estimate,
-                                 reliable_qos())
+                                 reliable_qos(depth=2))
         self._period = 1.0 / self._cfg["controller.rate"]
         self.create_timer(self._period, self._tick)
         self._diag = Diagnostics(self, self._diagnose)

@@ -65,6 +65,12 @@ class EstimatorNode(Node):
                                f"{self._params.pack.lamella_count} lamellas")
 
     def _on_rig_state(self, msg) -> None:
+        try:
+            self._estimate(msg)
+        except Exception as err:  # noqa: BLE001 - never die on one sample; diagnose it
+            self._skip("internal_error", f"{type(err).__name__}: {err}")
+
+    def _estimate(self, msg) -> None:
         from clutch_ros.model import SampleRejected
 
         now = self.get_clock().now().nanoseconds * 1e-9
@@ -85,7 +91,7 @@ class EstimatorNode(Node):
             self._skip("non_finite_output", "model produced a non-finite torque")
             return
         self._accepted += 1
-        self._pub.publish(estimate_to_msg(est, msg.header, self._pub.msg_type()))
+        self._pub.publish(estimate_to_msg(est, msg.header, self._pub.msg_type))
 
     def _skip(self, kind: str, why: str) -> None:
         self._skipped[kind] = self._skipped.get(kind, 0) + 1

@@ -1,0 +1,140 @@
+"""The ``rig_sim`` node: the embedded simulated rig, speaking the rig DBC on a CAN bus.
+
+A thin adapter around :class:`clutch_ros.rig.RigSimulator`: the truth plant
+(``rig.params_file``, default the ``rig_truth`` preset: a pack with the ``coulomb`` spline law
+and parameters deliberately different from the estimator's), pump dynamics with the pressure
+kick, a thermal model, sensor noise and FlexiForce voltages, stepped at ``rig.dt`` in real
+time in a background thread. It sends the rig frames at their DBC cycle times and follows
+the pump pressure requests it receives (counter and CRC checked; 0 bar when they stop).
+
+Modes: ``rig.scenario`` empty is the operator mode: the motor holds ``rig.slip_speed``
+(settable at run time with ``ros2 param set``, as a test engineer sets the rig motor) and the
+pump follows the bus. Otherwise a scripted run of the thesis (Tables 3-4):
+``table3:SEQ:RPM`` (DBP), ``table4:SEQ`` (PBD), or ``closed_loop[:RPM,...[:SEGMENT_S]]``.
+Frames are stamped with the wall clock (like a real adapter's receive time).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+
+from clutch_ros.nodes.common import Diagnostics, ParamSpec, declare_params, run_node
+
+NAME = "rig_sim"
+PARAMS = [
+    ParamSpec("can.interface", "udp_multicast", "python-can interface of the simulated rig"),
+    ParamSpec("can.channel", "239.74.163.2", "interface channel (multicast group ...)"),
+    ParamSpec("can.port", 43113, "UDP port (udp_multicast only)", "", 1, 65535),
+    ParamSpec("rig.params_file", "rig_truth", "truth-plant parameter file or preset name"),
+    ParamSpec("rig.scenario", "", "empty: operator mode (rig.slip_speed, pump from the bus); "
+              "or table3:SEQ:RPM, table4:SEQ, closed_loop[:RPM,...[:SEGMENT_S]]"),
+    ParamSpec("rig.repeat", False, "restart a scripted scenario at its end"),
+    ParamSpec("rig.slip_speed", 0.0, "operator mode: slip speed held by the rig motor",
+              "rad/s", -100.0, 100.0),
+    ParamSpec("rig.dt", 0.001, "simulation step", "s", 1e-4, 0.01),
+    ParamSpec("rig.seed", 0, "seed of the sensor variation and noise", "", 0, 2**31 - 1),
+]
+
+
+class _OperatorScenario:
+    """Closed loop with the slip speed set by the operator (the node parameter)."""
+
+    closed_loop = True
+    name = "operator"
+    duration = math.inf
+    initial_lamella_temperature = 35.0
+    repeat = False
+
+    def __init__(self, slip_speed: float):
+        self.slip_speed = slip_speed
+
+    def at(self, t: float):
+        """Return the operator's command at ``t`` [s]: bus pressure, held slip speed."""
+        from clutch_ros.rig.scenario import ScenarioPoint
+
+        return ScenarioPoint(math.nan, self.slip_speed, math.nan)
+
+
+class RigSimNode(Node):
+    """The simulated rig (see module docstring)."""
+
+    def __init__(self):
+        super().__init__(NAME)
+        from clutch_ros.canbus import BusConfig, ReconnectingBus
+        from clutch_ros.rig import RigCanPort, RigPlant, RigSimulator
+        from clutch_ros.rig.scenario import scenario_from_spec
+
+        cfg = self._cfg = declare_params(self, PARAMS)
+        plant = RigPlant.from_file(cfg["rig.params_file"], seed=cfg["rig.seed"])
+        if cfg["rig.scenario"]:
+            self._scenario = scenario_from_spec(cfg["rig.scenario"], repeat=cfg["rig.repeat"])
+        else:
+            self._scenario = _OperatorScenario(cfg["rig.slip_speed"])
+        extra = {"port": cfg["can.port"]} if cfg["can.interface"] == "udp_multicast" else {}
+        self._bus = ReconnectingBus(BusConfig(interface=cfg["can.interface"],
+                                              channel=cfg["can.channel"], extra=extra))
+        self._port = RigCanPort(self._bus)
+        self._sim = RigSimulator(plant, self._scenario, self._port, dt=cfg["rig.dt"],
+                                 stamp_clock=time.time)
+        self._stats = None
+        self._thread = threading.Thread(target=self._run, name="rig_sim", daemon=True)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._diag = Diagnostics(self, self._diagnose)
+        self._thread.start()
+        self.get_logger().info(f"simulated rig running scenario '{self._scenario.name}' on "
+                               f"{cfg['can.interface']}:{cfg['can.channel']}")
+
+    def _run(self) -> None:
+        duration = math.inf if (self._scenario.repeat or self._scenario.duration == math.inf) \
+            else self._scenario.duration
+        try:
+            self._stats = self._sim.run(duration, realtime=True)
+            self.get_logger().info(f"scenario done: {self._stats}")
+        except Exception as err:  # noqa: BLE001 - reported, the node keeps its diagnostics
+            self.get_logger().error(f"simulation stopped: {err}")
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        for p in params:
+            if p.name == "rig.slip_speed":
+                if not isinstance(self._scenario, _OperatorScenario):
+                    return SetParametersResult(successful=False, reason="rig.slip_speed is "
+                                               "only settable in operator mode")
+                self._scenario.slip_speed = float(p.value)
+            elif p.name != "use_sim_time":
+                return SetParametersResult(successful=False,
+                                           reason=f"{p.name} cannot change at run time")
+        return SetParametersResult(successful=True)
+
+    def _diagnose(self):
+        sim, port = self._sim, self._port
+        values = {"sim_time_s": sim.time, "steps": sim.steps, "frames_sent": port.sent,
+                  "send_errors": port.send_errors, "pump_requests": port.received,
+                  "invalid_pump_requests": port.monitor.invalid,
+                  "requested_pressure_pa": port.requested_pressure(sim.time)}
+        if sim.signals is not None:
+            values.update(actuating_pressure_pa=sim.signals.actuating_pressure,
+                          true_torque_nm=sim.signals.true_torque,
+                          lamella_temperature_c=sim.signals.lamella_temperature)
+        if not self._thread.is_alive():
+            return "WARN", "simulation not running", values
+        return "OK", f"running '{self._scenario.name}'", values
+
+    def close(self) -> None:
+        """Stop the simulation thread and close the bus."""
+        self._sim.stop()
+        self._thread.join(timeout=2.0)
+        self._bus.shutdown()
+
+
+def main(args=None) -> int:
+    """Console entry point: ``ros2 run clutch_ros rig_sim``."""
+    return run_node(NAME, __doc__, PARAMS, RigSimNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,200 @@
+"""PackModel: closed forms (Eq. 1, series springs, step response), sampling, state handling."""
+
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from clutch_ros.model import (
+    InputError,
+    NonFiniteSample,
+    PackModel,
+    friction_coefficient,
+    reference_torque,
+    simulate,
+)
+from tests.model.closed_forms import step_response_positions
+
+W10 = 10 * 2 * math.pi / 60  # 10 rpm [rad/s]
+
+
+@pytest.fixture
+def none_params(flexiforce):
+    return flexiforce.with_law("none")
+
+
+def test_reset_is_the_series_spring_equilibrium(none_params):
+    pk = none_params.pack
+    model = PackModel(none_params)
+    model.reset(40e5, 35.0, W10)
+    force = 40e5 * pk.piston_area
+    n = np.arange(1, pk.lamella_count + 1)
+    # z_n = n F / k, z_N = N F / k: series springs (exact up to one rounding)
+    assert_allclose(model.positions, n * force / pk.lamella_stiffness, rtol=1e-15)
+    sample = model.output(40e5, W10, 35.0)
+    assert_allclose(sample.normal_force, force, rtol=1e-12)  # every spring carries F
+    assert_allclose(sample.compression, pk.lamella_count * force / pk.lamella_stiffness,
+                    rtol=1e-15)
+
+
+def test_held_pressure_converges_to_eq1_and_series_springs(none_params):
+    pk = none_params.pack
+    t = np.arange(0.0, 5.0, 1e-3)  # 50 time constants of c/k = 0.1 s
+    res = simulate(none_params, t, 40e5, W10, 35.0, initial_pressure=0.0)
+    # converged: e^-50 ~ 2e-22 of the step is left, so only rounding remains
+    assert_allclose(res.torque[-1], reference_torque(none_params, 40e5, 35.0, W10),
+                    rtol=1e-12)
+    assert_allclose(res.compression[-1],
+                    pk.lamella_count * 40e5 * pk.piston_area / pk.lamella_stiffness,
+                    rtol=1e-12)
+    assert_allclose(res.pressure_difference[-1], 0.0, atol=1e-6)  # Pa, of 4e6 Pa
+
+
+def test_step_response_against_closed_form(none_params):
+    pk = none_params.pack
+    dt = 1e-3
+    t = np.arange(0.0, 0.6 + dt / 2, dt)
+    res = simulate(none_params, t, 40e5, W10, 35.0, initial_pressure=0.0)
+    z = step_response_positions(pk.lamella_count, pk.lamella_mass, pk.lamella_stiffness,
+                                pk.lamella_damping, 40e5 * pk.piston_area, t[::50])
+    mu = friction_coefficient(none_params, 35.0, 40e5, W10)
+    expected = 2 * mu * pk.effective_radius * pk.lamella_stiffness * z[:, -1] * math.tanh(
+        W10 / none_params.friction.sign_speed)
+    # expm accuracy on the stiff matrix: ~5e-8 of the final torque
+    assert_allclose(res.torque[::50], expected, rtol=0, atol=2e-7 * expected[-1])
+    # the torque time constant is c/k (all modes share the slow root -k/c to ~3e-6)
+    tau = pk.lamella_damping / pk.lamella_stiffness
+    final = reference_torque(none_params, 40e5, 35.0, W10)
+    assert_allclose(res.torque[int(round(tau / dt))] / final, 1 - math.exp(-1), rtol=1e-5)
+
+
+def test_eq27_outputs_are_consistent(flexiforce):
+    seq_t = np.arange(0.0, 1.5, 1e-3)
+    press = np.where(seq_t > 0.2, 40e5, 0.0)
+    res = simulate(flexiforce, seq_t, press, W10, 35.0)
+    pk = flexiforce.pack
+    eq27 = 2 * res.mu * pk.effective_radius * res.normal_force.sum(axis=1) * math.tanh(
+        W10 / flexiforce.friction.sign_speed)
+    assert_allclose(res.torque, eq27, rtol=1e-12, atol=1e-9)  # telescoped sum = k z_N
+    assert_allclose(res.front_pressure, res.normal_force[:, -1] / pk.piston_area, rtol=1e-15)
+    assert_allclose(res.rear_pressure, res.normal_force[:, 0] / pk.piston_area, rtol=1e-15)
+    assert_allclose(res.pressure_difference, res.front_pressure - res.rear_pressure, rtol=1e-15)
+    # compressing against ff_t spline friction: front carries more than rear (P_diff > 0)
+    k = int(0.3 / 1e-3)
+    assert res.pressure_difference[k] > 0.05 * 40e5
+
+
+def test_slip_direction_sets_torque_sign(flexiforce):
+    t = np.arange(0.0, 0.5, 1e-3)
+    pos = simulate(flexiforce, t, 30e5, W10, 40.0)
+    neg = simulate(flexiforce, t, 30e5, -W10, 40.0)
+    assert_allclose(neg.torque, -pos.torque, rtol=1e-15)
+    assert_allclose(neg.normal_force, pos.normal_force, rtol=1e-15)  # forces do not care
+    still = simulate(flexiforce, t, 30e5, 0.0, 40.0)
+    assert np.all(still.torque == 0.0)
+
+
+def test_variable_dt_is_exact_for_held_inputs(none_params):
+    # ZOH with a held input is exact, so any split of [0, 0.3 s] ends in the same state
+    # (dts are whole microseconds: the 1 us cache quantisation is then exact)
+    rng = np.random.default_rng(7)
+    steps_us = np.cumsum(rng.integers(50, 5000, 400))
+    steps_us = np.append(steps_us[steps_us < 300_000], 300_000)
+    t_var = np.concatenate([[0.0], steps_us * 1e-6])
+    t_fix = np.arange(301) * 1e-3
+    runs = [simulate(none_params, t, 40e5, W10, 35.0, initial_pressure=0.0)
+            for t in (t_var, t_fix, np.array([0.0, 0.3]))]
+    # rounding of ~100-300 products of expm results: agree to ~1e-12
+    assert_allclose(runs[0].positions[-1], runs[1].positions[-1], rtol=1e-9)
+    assert_allclose(runs[0].positions[-1], runs[2].positions[-1], rtol=1e-9)
+
+
+def test_stable_with_huge_sample_times(flexiforce):
+    model = PackModel(flexiforce)
+    model.reset(0.0, 35.0, W10)
+    for dt in (0.5, 10.0, 1e4):
+        s = model.step(dt, 40e5, W10, 35.0)
+        assert np.all(np.isfinite(s.normal_force)) and abs(s.torque) < 2000.0
+    assert_allclose(s.torque, reference_torque(flexiforce, 40e5, 35.0, W10), rtol=1e-12)
+
+
+def test_bad_input_rejected_and_state_untouched(flexiforce):
+    model = PackModel(flexiforce)
+    model.reset(20e5, 35.0, W10)
+    model.step(1e-3, 30e5, W10, 35.0)
+    before = model.state.work.copy()
+    for args in ((1e-3, math.nan, W10, 35.0), (1e-3, 30e5, math.inf, 35.0),
+                 (1e-3, 30e5, W10, -math.inf)):
+        with pytest.raises(NonFiniteSample):
+            model.step(*args)
+    for dt in (0.0, -1e-3, math.nan, math.inf):
+        with pytest.raises(InputError):
+            model.step(dt, 30e5, W10, 35.0)
+    assert np.array_equal(model.state.work, before)
+    assert np.all(np.isfinite(model.step(1e-3, 30e5, W10, 35.0).normal_force))
+
+
+def test_snapshot_restore_and_copy(truth):
+    model = PackModel(truth)
+    model.reset(0.0, 35.0, W10)
+    for k in range(300):
+        model.step(1e-3, k * 1e4, W10, 35.0)
+    snap = model.state
+    twin = model.copy()
+    ref = [model.step(1e-3, 30e5 - k * 1e4, W10, 35.0).torque for k in range(200)]
+    assert [twin.step(1e-3, 30e5 - k * 1e4, W10, 35.0).torque for k in range(200)] == ref
+    model.restore(snap)
+    assert [model.step(1e-3, 30e5 - k * 1e4, W10, 35.0).torque for k in range(200)] == ref
+    other = PackModel(truth.replace(**{"clutch.lamella_count": 9}))
+    with pytest.raises(InputError):
+        other.restore(snap)
+
+
+def test_set_params_keeps_state(flexiforce):
+    model = PackModel(flexiforce)
+    model.reset(0.0, 35.0, W10)
+    for _ in range(150):
+        model.step(1e-3, 40e5, W10, 35.0)
+    z = model.positions
+    torque = model.output(40e5, W10, 35.0).torque
+    model.set_params(flexiforce.replace(**{"friction.mu_ref": 0.132}))  # +10 %
+    assert np.array_equal(model.positions, z)
+    assert_allclose(model.output(40e5, W10, 35.0).torque, 1.1 * torque, rtol=1e-12)
+    model.set_params(flexiforce.replace(**{"clutch.lamella_count": 6}))  # new shape
+    assert model.positions.shape == (6,)
+    assert_allclose(model.positions[-1], 6 * 40e5 * 3.75e-3 / 4e8, rtol=1e-12)
+
+
+@pytest.mark.parametrize("n", [1, 2, 13])
+def test_any_lamella_count(flexiforce, n):
+    params = flexiforce.replace(**{"clutch.lamella_count": n})
+    t = np.arange(0.0, 3.0, 2e-3)
+    res = simulate(params, t, 40e5, W10, 35.0, initial_pressure=0.0)
+    assert res.normal_force.shape == (t.size, n)
+    # ff_t forces have decayed by e^-3 after 3 s: within 6 % of Eq. 1, never above it
+    ref = reference_torque(params, 40e5, 35.0, W10)
+    assert 0.94 * ref < res.torque[-1] <= ref
+
+
+def test_negative_pressure_is_zero_force(none_params):
+    model = PackModel(none_params)
+    model.reset(-3e5)
+    assert np.all(model.positions == 0.0)
+    assert model.step(1e-3, -3e5, W10, 35.0).torque == 0.0
+
+
+def test_spline_correction_is_the_quasi_static_pressure_loss(truth):
+    # coulomb: ramp up, hold; the stuck pack keeps the loss. With velocities ~0 the springs
+    # carry N F_act - sum_m m F_fm, i.e. Eq. 27 equals Eq. 1 at p - correction.
+    t = np.arange(0.0, 8.0, 1e-3)
+    press = np.interp(t, [0.0, 1.0, 4.0, 8.0], [0.0, 0.0, 40e5, 40e5])
+    model = PackModel(truth)
+    res = simulate(truth, t, press, W10, 35.0, model=model)
+    corr = model.spline_correction()
+    assert corr > 0.02 * 40e5  # compressing against stiction: a real loss
+    mu = res.mu[-1]
+    pk = truth.pack
+    eq1_at_corrected = (2 * pk.effective_radius * mu * pk.lamella_count * pk.piston_area
+                        * (40e5 - corr) * math.tanh(W10 / truth.friction.sign_speed))
+    assert_allclose(res.torque[-1], eq1_at_corrected, rtol=1e-9)  # rounding of the sums

@@ -1,0 +1,101 @@
+"""The estimator node as a real process: estimates per sample, bad samples skipped and diagnosed.
+
+A test node publishes RigState over DDS to an ``estimator`` process: valid samples interleaved
+with a NaN sample, a duplicated stamp and an out-of-order stamp. Every valid sample gets one
+ClutchEstimate with the same stamp, no estimate carries a NaN torque, none of the bad stamps
+comes back, the skips are reported on /diagnostics, and the node is still running.
+"""
+
+import math
+import subprocess
+import sys
+
+import pytest
+
+from tests.conftest import REPO
+from tests.nodes.rclpy_harness import Harness
+
+pytestmark = pytest.mark.ros
+
+PRESET = REPO / "params" / "flexiforce_8.yaml"
+
+
+def _rig_state(t: float, pressure: float = 20e5):
+    from clutch_msgs.msg import RigState
+
+    msg = RigState()
+    msg.header.stamp.sec = int(t)
+    msg.header.stamp.nanosec = int(round((t - int(t)) * 1e9))
+    msg.actuating_pressure = pressure
+    msg.lamella_temperature = 40.0
+    msg.slip_speed = 10 * 2 * math.pi / 60
+    msg.measured_torque = 500.0
+    msg.has_measured_torque = True
+    return msg
+
+
+@pytest.fixture
+def estimator(ros_env):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "clutch_ros.nodes.estimator", "--ros-args", "--params-file",
+         str(PRESET), "-p", "estimator.max_sample_age:=0.0"],
+        cwd=REPO, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    yield proc
+    proc.terminate()
+    try:
+        proc.wait(10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+
+
+def test_estimates_per_sample_and_bad_samples_skipped(estimator):
+    from clutch_msgs.msg import ClutchEstimate, RigState
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from clutch_ros.nodes.common import reliable_qos, sensor_qos, stamp_to_sec
+
+    with Harness() as h:
+        estimates = h.collect(ClutchEstimate, "clutch_estimate", reliable_qos())
+        diags = h.collect(DiagnosticArray, "/diagnostics", 10)
+        pub = h.node.create_publisher(RigState, "rig_state", sensor_qos())
+        h.spin_until(lambda: pub.get_subscription_count() > 0
+                     and h.node.count_publishers("clutch_estimate") > 0, 30.0,
+                     "the estimator to connect")
+        h.spin_for(0.5)
+        t0 = 1_700_000_000.0
+        valid, bad = [], []
+        for i in range(60):
+            t = t0 + 0.01 * i
+            pub.publish(_rig_state(t, pressure=5e5 + 5e4 * i))
+            valid.append(t)
+            if i == 20:
+                nan_msg = _rig_state(t + 0.005)
+                nan_msg.actuating_pressure = math.nan
+                pub.publish(nan_msg)
+                bad.append(t + 0.005)
+            if i == 30:
+                pub.publish(_rig_state(t))  # duplicate stamp
+            if i == 40:
+                pub.publish(_rig_state(t - 0.015))  # out of order
+                bad.append(t - 0.015)
+            h.spin_for(0.004)
+        h.spin_until(lambda: len(estimates) >= len(valid), 20.0, "all estimates")
+        wanted = {"skipped_NonFiniteSample", "skipped_DuplicateSample",
+                  "skipped_OutOfOrderSample"}
+        h.spin_until(lambda: wanted <= {kv.key for d in diags for s in d.status
+                                        for kv in s.values}, 10.0, "skip diagnostics")
+        assert estimator.poll() is None, "estimator died"
+
+    stamps = [round(stamp_to_sec(e.header.stamp), 6) for e in estimates]
+    assert stamps == [round(t, 6) for t in valid]
+    assert all(math.isfinite(e.modelled_torque) for e in estimates)
+    assert not {round(t, 6) for t in bad} & set(stamps)
+    last = estimates[-1]
+    assert last.spline_law and len(last.lamella_normal_force) == 8
+    assert last.modelled_torque > 0.0 and math.isfinite(last.torque_accuracy)
+    keys = {kv.key: kv.value for d in diags for s in d.status if "estimator" in s.name
+            for kv in s.values}
+    skipped = {k: int(v) for k, v in keys.items() if k.startswith("skipped_")}
+    assert skipped.get("skipped_NonFiniteSample", 0) >= 1, keys
+    assert skipped.get("skipped_DuplicateSample", 0) >= 1, keys
+    assert skipped.get("skipped_OutOfOrderSample", 0) >= 1, keys
