@@ -153,3 +153,32 @@ def test_column_sink_grows_and_widens():
     nan = np.nan
     assert np_equal(out["s"], [[1, 2, nan], [3, 4, nan], [5, 6, 7], [8, nan, nan]])
     assert ColumnSink(5).result({"x": np.zeros(0)})["x"].shape == (0,)
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none", "unchunked"])
+def test_mcap_written_by_the_mcap_library_reads_identically(tmp_path, store, compression):
+    """Bare .mcap files from another writer: zstd/lz4 chunks with CRCs, or no chunks at all."""
+    from mcap.writer import CompressionType, Writer
+
+    file = tmp_path / f"ext_{compression}.mcap"
+    msgs = [_varied(i) for i in range(600)]
+    msgdef, _ = store.generate_msgdef(RIG_STATE, ros_version=2)
+    kind = (
+        CompressionType.NONE
+        if compression in ("none", "unchunked")
+        else CompressionType[compression.upper()]
+    )
+    with file.open("wb") as fh:
+        writer = Writer(
+            fh, chunk_size=4096, compression=kind, use_chunking=compression != "unchunked"
+        )
+        writer.start(profile="ros2", library="test")
+        schema = writer.register_schema(RIG_STATE, "ros2msg", msgdef.encode())
+        channel = writer.register_channel("/rig_state", "cdr", schema, {})
+        for i, msg in enumerate(msgs):
+            stamp = STAMP_NS + i * 1_000_000
+            writer.add_message(channel, stamp, cdr(msg, RIG_STATE), stamp, sequence=i)
+        writer.finish()
+    for fast in (True, False):
+        arrays = read_rig_states(file, fast=fast)
+        _assert_columns_match_messages(arrays.columns, msgs)

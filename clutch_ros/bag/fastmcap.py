@@ -1,0 +1,188 @@
+"""A minimal, fast scan of the message records of one MCAP file, chunk by chunk.
+
+rosbags reads MCAP messages one Python object at a time (~2-3 us per message). For offline
+replay only the raw CDR bytes of one or two topics are needed, in bulk: :func:`scan_chunks`
+walks the data section once, decompresses each chunk (none, zstd or lz4; CRC checked when
+present), and returns per chunk the positions of the wanted messages inside the chunk buffer,
+so :class:`~clutch_ros.bag.columns.ColumnDecoder` can decode them in place without per-message
+byte copies.
+
+It is only used on files rosbags has opened (and so validated) before, for reading; it does
+not replace rosbags. Messages are returned in file order with their log times; callers sort by
+log time (stable) to obtain rosbags' order.
+"""
+
+from __future__ import annotations
+
+import struct
+import sys
+import zlib
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import BinaryIO, NamedTuple
+
+import numpy as np
+
+if sys.version_info >= (3, 14):  # pragma: no cover
+    from compression import zstd
+else:
+    from backports import zstd
+
+__all__ = ["FastMcapError", "MessageBlock", "scan_chunks"]
+
+MAGIC = b"\x89MCAP0\r\n"
+_OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_FOOTER, _OP_DATA_END = 0x04, 0x05, 0x06, 0x02, 0x0F
+_REC = struct.Struct("<BQ")  # opcode, record length
+_LEN = struct.Struct("<Q")  # record length
+_CHUNK = struct.Struct("<QQQI")  # start time, end time, uncompressed size, uncompressed crc
+
+
+class FastMcapError(ValueError):
+    """The file does not follow the MCAP layout (or uses an unsupported compression)."""
+
+
+class MessageBlock(NamedTuple):
+    """Wanted messages of one chunk: CDR bytes are ``buf[starts[i] : starts[i] + lengths[i]]``.
+
+    ``buf`` has 8 spare zero bytes at its end; ``times`` are log times [ns since epoch].
+    """
+
+    buf: np.ndarray
+    starts: np.ndarray
+    lengths: np.ndarray
+    times: np.ndarray
+    channels: np.ndarray
+
+
+def _lz4(data: bytes) -> bytes:
+    from lz4.frame import decompress  # rosbags' own dependency, only needed for lz4 chunks
+
+    return decompress(data)
+
+
+_DECOMPRESS: dict[str, Callable[[bytes], bytes]] = {
+    "": lambda data: data,
+    "zstd": zstd.decompress,
+    "lz4": _lz4,
+}
+
+
+def _string(buf: bytes, pos: int) -> tuple[str, int]:
+    (size,) = struct.unpack_from("<I", buf, pos)
+    return buf[pos + 4 : pos + 4 + size].decode(), pos + 4 + size
+
+
+def _channel(body: bytes) -> tuple[int, str]:
+    (cid,) = struct.unpack_from("<H", body, 0)
+    topic, _ = _string(body, 4)
+    return cid, topic
+
+
+def _read(fh: BinaryIO, size: int, what: str) -> bytes:
+    pos = fh.tell()
+    data = fh.read(size)
+    if len(data) != size:
+        raise FastMcapError(f"truncated {what} at offset {pos}")
+    return data
+
+
+class _Scan:
+    """Walk records; collect channel topics and the wanted messages of each chunk."""
+
+    def __init__(self, topics: set[str]):
+        self.topics = topics
+        self.wanted: set[int] = set()
+
+    def channel(self, body: bytes) -> None:
+        cid, topic = _channel(body)
+        if topic in self.topics:
+            self.wanted.add(cid)
+
+    def chunk(self, body: bytes) -> MessageBlock | None:
+        _, _, size, crc = _CHUNK.unpack_from(body, 0)
+        compression, pos = _string(body, 28)
+        (length,) = struct.unpack_from("<Q", body, pos)
+        pos += 8
+        try:
+            data = _DECOMPRESS[compression](body[pos : pos + length])
+        except KeyError:
+            raise FastMcapError(f"unsupported chunk compression {compression!r}") from None
+        except Exception as err:  # noqa: BLE001 - decompressor errors on corrupt data
+            raise FastMcapError(f"chunk cannot be decompressed: {err}") from err
+        if len(data) != size or (crc and zlib.crc32(data) != crc):
+            raise FastMcapError("chunk size or CRC mismatch")
+        return self.records(data)
+
+    def records(self, data: bytes) -> MessageBlock | None:
+        """Locate the wanted messages among the records of one chunk (or a lone message).
+
+        The Python loop only finds record boundaries; record fields are then read for all
+        message records at once with numpy.
+        """
+        found: list[int] = []  # positions of message records
+        append, unpack = found.append, _LEN.unpack_from
+        pos, end = 0, len(data)
+        while pos < end:
+            if pos + 9 > end:
+                raise FastMcapError("truncated record in chunk")
+            op = data[pos]
+            (size,) = unpack(data, pos + 1)
+            if op == _OP_MESSAGE:
+                append(pos)
+            elif op == _OP_CHANNEL:
+                self.channel(data[pos + 9 : pos + 9 + size])
+            pos += 9 + size
+        if pos != end:
+            raise FastMcapError("record overruns its chunk")
+        if not found or not self.wanted:
+            return None
+        buf = np.frombuffer(data + bytes(32), dtype=np.uint8)
+        at = np.array(found, dtype=np.int64)
+        size = _field(buf, at + 1, "<u8").astype(np.int64)
+        if (size < 22).any():
+            raise FastMcapError(f"message record of {int(size.min())} bytes in chunk")
+        chans = _field(buf, at + 9, "<u2").astype(np.int64)
+        keep = np.isin(chans, np.fromiter(self.wanted, dtype=np.int64))
+        if not keep.any():
+            return None
+        at, size, chans = at[keep], size[keep], chans[keep]
+        times = _field(buf, at + 15, "<u8").astype(np.int64)
+        return MessageBlock(buf, at + 31, size - 22, times, chans)
+
+
+def _field(buf: np.ndarray, pos: np.ndarray, dtype: str) -> np.ndarray:
+    """Read one little-endian field of type ``dtype`` at each position of ``pos`` in ``buf``."""
+    width = np.dtype(dtype).itemsize
+    return buf[pos[:, None] + np.arange(width)].view(dtype).reshape(-1)
+
+
+def scan_chunks(path: Path, topics: set[str]) -> Iterator[MessageBlock]:
+    """Yield, per chunk (or top-level message), the messages published on ``topics``.
+
+    Raises:
+        FastMcapError: not MCAP, truncated, corrupt chunk, unsupported compression.
+
+    """
+    scan = _Scan(topics)
+    with path.open("rb") as fh:
+        if fh.read(8) != MAGIC:
+            raise FastMcapError("not an MCAP file (bad magic)")
+        while True:
+            head = fh.read(9)
+            if not head:
+                raise FastMcapError("no data end or footer record (truncated file)")
+            if len(head) != 9:
+                raise FastMcapError(f"truncated record header at offset {fh.tell() - len(head)}")
+            op, size = _REC.unpack(head)
+            if op in {_OP_DATA_END, _OP_FOOTER}:
+                return
+            if op not in {_OP_CHUNK, _OP_CHANNEL, _OP_MESSAGE}:
+                fh.seek(size, 1)
+                continue
+            body = _read(fh, size, f"record {op:#x}")
+            if op == _OP_CHANNEL:
+                scan.channel(body)
+                continue
+            block = scan.chunk(body) if op == _OP_CHUNK else scan.records(head + body)
+            if block is not None:
+                yield block

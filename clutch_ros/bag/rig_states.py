@@ -1,0 +1,217 @@
+"""RigState bags as numpy columns: the machinery behind ``reader.read_rig_states``.
+
+Two ways to get the raw CDR bytes of one topic, both decoded in bulk with numpy by
+:class:`~clutch_ros.bag.columns.ColumnDecoder`:
+
+- :func:`read_fast`: uncompressed MCAP files are scanned directly
+  (:func:`~clutch_ros.bag.fastmcap.scan_chunks`), when metadata.yaml agrees with the storage;
+  messages are sorted by bag timestamp (stable), as rosbags yields them.
+- :func:`read_via_rosbags`: any bag, through :meth:`BagReader.messages` (``raw=True``).
+
+Both check the number of messages against the count the bag declares.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from clutch_ros.bag.columns import ColumnDecoder, CorruptMessageError, columns_slow
+from clutch_ros.bag.diagnose import blame_file, load_metadata, storage_files
+from clutch_ros.bag.errors import BagCorruptError, BagCountMismatchError
+from clutch_ros.bag.fastmcap import scan_chunks
+from clutch_ros.bag.typestore import RIG_STATE
+
+if TYPE_CHECKING:
+    from clutch_ros.bag.reader import BagReader
+
+__all__ = ["ColumnSink", "RigStateArrays", "mcap_files", "read_fast", "read_via_rosbags"]
+
+
+class RigStateArrays:
+    """Every ``RigState`` field of a bag topic as numpy arrays (one element per message).
+
+    Attribute access returns columns by field name: ``actuating_pressure`` [Pa],
+    ``lamella_temperature``, ``oil_temperature`` [degC], ``input_speed``, ``output_speed``,
+    ``slip_speed`` [rad/s], ``measured_torque`` [N m], ``has_measured_torque`` (bool),
+    ``torque_request`` [N m], ``pump_current`` [A], ``stale_mask``, ``ff_voltages`` [V] and
+    ``wheel_speeds`` [rad/s] as ``(n, width)`` arrays padded with NaN (lengths in
+    ``columns["ff_voltages.len"]``). Fields added to RigState.msg appear automatically.
+
+    Attributes:
+        path: the bag.
+        topic: the topic read.
+        stamp_ns: header stamps [ns since epoch] (int64).
+        stamp: header stamps [s since epoch] (float64).
+        time: header stamps relative to the first message [s].
+        bag_time_ns: bag (receive) timestamps [ns since epoch] (int64).
+        columns: all columns by dotted field path (``header.stamp.sec`` ...).
+
+    """
+
+    def __init__(self, path: Path, topic: str, columns: dict[str, np.ndarray], bag_ns: np.ndarray):
+        self.path = path
+        self.topic = topic
+        self.columns = columns
+        sec = columns["header.stamp.sec"].astype(np.int64)
+        self.stamp_ns = sec * 1_000_000_000 + columns["header.stamp.nanosec"].astype(np.int64)
+        self.stamp = self.stamp_ns / 1e9
+        self.time = (self.stamp_ns - (self.stamp_ns[0] if len(self.stamp_ns) else 0)) / 1e9
+        self.bag_time_ns = bag_ns
+
+    def __len__(self) -> int:
+        return len(self.stamp_ns)
+
+    def __getattr__(self, name: str) -> np.ndarray:
+        columns = self.__dict__.get("columns", {})
+        if name in columns:
+            return columns[name]
+        raise AttributeError(f"RigStateArrays has no field {name!r}")
+
+
+class ColumnSink:
+    """Collect decoded batches into preallocated column arrays (no final concatenation).
+
+    Args:
+        capacity: expected number of rows (the count the bag declares); grows if exceeded.
+
+    2-D columns (sequences) widen when a later batch is wider; missing cells are NaN (float)
+    or 0 (integer).
+    """
+
+    def __init__(self, capacity: int):
+        self.capacity = max(int(capacity), 1)
+        self.rows = 0
+        self.cols: dict[str, np.ndarray] | None = None
+
+    @staticmethod
+    def _alloc(like: np.ndarray, rows: int, width: int | None = None) -> np.ndarray:
+        shape = (rows,) if like.ndim == 1 else (rows, like.shape[1] if width is None else width)
+        out = np.empty(shape, dtype=like.dtype)
+        if like.ndim == 2:
+            out.fill(np.nan if like.dtype.kind == "f" else 0)
+        return out
+
+    def add(self, part: dict[str, np.ndarray]) -> None:
+        """Append one batch of columns (all of the same length)."""
+        n = len(next(iter(part.values()))) if part else 0
+        if self.cols is None:
+            self.cols = {k: self._alloc(v, max(self.capacity, n)) for k, v in part.items()}
+        cols = self.cols
+        end = self.rows + n
+        for key, arr in part.items():
+            out = cols[key]
+            if end > len(out) or (arr.ndim == 2 and arr.shape[1] > out.shape[1]):
+                width = max(arr.shape[1], out.shape[1]) if arr.ndim == 2 else None
+                grown = self._alloc(arr, max(end, 2 * len(out)), width)
+                if out.ndim == 2:
+                    grown[: self.rows, : out.shape[1]] = out[: self.rows]
+                else:
+                    grown[: self.rows] = out[: self.rows]
+                cols[key] = out = grown
+            if arr.ndim == 2:
+                out[self.rows : end, : arr.shape[1]] = arr
+            else:
+                out[self.rows : end] = arr
+        self.rows = end
+
+    def result(self, empty: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Return the columns (``empty`` if nothing was added)."""
+        if self.cols is None:
+            return empty
+        return {k: v[: self.rows] for k, v in self.cols.items()}
+
+
+def mcap_files(bag: BagReader) -> list[Path] | None:
+    """Return the MCAP files of a bag the fast scan can read (uncompressed bag), else None."""
+    if not bag.path.is_dir():
+        return [bag.path] if bag.path.suffix == ".mcap" else None
+    meta = load_metadata(bag.path)
+    if meta is None or str(meta.get("storage_identifier")) != "mcap":
+        return None
+    if str(meta.get("compression_mode") or "").lower() not in {"", "none"}:
+        return None
+    return storage_files(bag.path, meta)
+
+
+def read_fast(
+    bag: BagReader, topic: str, decoder: ColumnDecoder, files: list[Path]
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Scan the MCAP files directly; same count check and order as the rosbags path.
+
+    Only valid when metadata.yaml agrees with the storage (``storage_issues`` empty): the scan
+    selects messages by channel topic, while rosbags also requires the QoS to match.
+    """
+    declared = sum(c.msgcount for c in bag.reader.connections if c.topic == topic)
+    sink = ColumnSink(declared)
+    times: list[np.ndarray] = []
+    done = 0
+    for file in files:
+        try:
+            for block in scan_chunks(file, {topic}):
+                sink.add(decoder.decode_buffer(block.buf, block.starts, block.lengths))
+                times.append(block.times)
+                done += len(block.times)
+        except CorruptMessageError as err:
+            raise BagCorruptError(file, f"{topic}: message {done + err.index + 1}: {err}") from err
+        except Exception as err:  # noqa: BLE001 - FastMcapError, struct.error, zstd errors
+            raise BagCorruptError(file, f"cannot read messages: {err}") from err
+    if done != declared:
+        raise BagCountMismatchError(
+            bag.path,
+            f"{topic}: read {done} messages but the bag declares {declared}",
+            topic=topic, expected=declared, actual=done,
+        )  # fmt: skip
+    stamps = np.concatenate(times) if times else np.zeros(0, dtype=np.int64)
+    columns = sink.result(decoder.decode([]))
+    if len(stamps) > 1 and (np.diff(stamps) < 0).any():  # rosbags order: by log time, stable
+        order = np.argsort(stamps, kind="stable")
+        stamps = stamps[order]
+        columns = {k: v[order] for k, v in columns.items()}
+    return columns, stamps
+
+
+def read_via_rosbags(
+    bag: BagReader, topic: str, decoder: ColumnDecoder | None, batch: int
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Read raw messages through rosbags (any storage) and decode them in batches."""
+    declared = sum(c.msgcount for c in bag.reader.connections if c.topic == topic)
+    sink = ColumnSink(declared)
+    empty: list[dict[str, np.ndarray]] = []
+    stamps: list[np.ndarray] = []
+    raws: list[bytes] = []
+    times: list[int] = []
+    done = 0
+
+    def flush() -> None:
+        nonlocal done
+        try:
+            if decoder is None:
+                part = columns_slow(bag.store, RIG_STATE, raws)
+            else:
+                part = decoder.decode(raws)
+        except CorruptMessageError as err:
+            raise BagCorruptError(
+                blame_file(bag.path), f"{topic}: message {done + err.index + 1}: {err}"
+            ) from err
+        except Exception as err:  # noqa: BLE001 - slow path: rosbags SerdeError
+            raise BagCorruptError(blame_file(bag.path), f"{topic}: cannot decode: {err}") from err
+        if raws:
+            sink.add(part)
+        else:
+            empty.append(part)
+        stamps.append(np.array(times, dtype=np.int64))
+        done += len(raws)
+        raws.clear()
+        times.clear()
+
+    for _, timestamp, data in bag.messages(topic, raw=True):
+        raws.append(data)
+        times.append(timestamp)
+        if len(raws) >= batch:
+            flush()
+    if raws or not done:
+        flush()
+    return sink.result(empty[0] if empty else {}), np.concatenate(stamps)
