@@ -14,7 +14,7 @@ from clutch_ros.model import (
     simulate,
 )
 from clutch_ros.model.metrics import hysteresis_width
-from clutch_ros.model.spline import CoulombLaw, TorqueFilterLaw, ViscousLaw
+from clutch_ros.model.spline import TorqueFilterLaw
 
 W10 = 10 * 2 * math.pi / 60  # [rad/s]
 
@@ -35,7 +35,7 @@ def test_ff_t_torque_step_response_is_kappa_t_exp(flexiforce, tau):
     lay = model.layout
     kappa, torque = params.spline.gain, 1000.0
     rng = np.random.default_rng(3)
-    dts_us = rng.integers(100, 50_000, 300)  # whole microseconds: exact cache quantisation
+    dts_us = rng.integers(10, 5_000, 300) * 10  # whole 10 us: exact cache quantisation
     t = np.cumsum(dts_us) * 1e-6
     work = np.zeros(lay.size)
     work[lay.i_torque] = torque  # T steps from 0 (y = 0) to 1000 N m at t = 0
@@ -91,8 +91,9 @@ def test_thesis_laws_vanish_at_steady_state(flexiforce, law):
     res = simulate(params, t, np.where(t > 1.0, 40e5, 0.0), W10, 35.0)
     peak = np.abs(res.spline_force).max()
     assert peak > 50.0  # a real transient loss (N per lamella) ...
-    assert np.abs(res.spline_force[-1]).max() < 1e-6 * peak  # ... gone after 20+ tau
-    assert_allclose(res.torque[-1], reference_torque(params, 40e5, 35.0, W10), rtol=1e-9)
+    assert np.abs(res.spline_force[-1]).max() < 1e-6 * peak  # ... gone after 19+ tau
+    # what is left: ff_v e^{-39/2} ~ 3e-9 of a ~10 % loss (ff_t: rounding only)
+    assert_allclose(res.torque[-1], reference_torque(params, 40e5, 35.0, W10), rtol=1e-8)
 
 
 def _coulomb_a(params, mu, slip):
@@ -119,14 +120,19 @@ def test_coulomb_quasi_static_force_ratio(truth):
         assert abs(ratios[0] - 1.0) > 0.01  # and the effect is not negligible
 
 
-def test_coulomb_sticks_when_the_pressure_stops(truth):
-    t = np.arange(0.0, 6.0, 1e-3)
-    p = np.interp(t, [0.0, 0.5, 3.0, 6.0], [0.0, 0.0, 40e5, 40e5])
+def test_coulomb_sticks_inside_the_friction_cone(truth):
+    t = np.arange(0.0, 7.0, 1e-3)
+    # ramp to 40 bar, hold 2 s: the pack creeps towards the sliding equilibrium, where the
+    # holding force equals the bound (so it approaches the stick limit exponentially)
+    p = np.interp(t, [0.0, 0.5, 3.0, 5.0, 5.001, 7.0], [0.0, 0.0, 40e5, 40e5, 39.8e5, 39.8e5])
     res = simulate(truth, t, p, W10, 35.0)
-    held = res.positions[int(4.0 / 1e-3):]
-    # after the pack has come to rest it is stuck: positions constant to rounding (m)
-    assert_allclose(held, held[0], rtol=0, atol=1e-16)
+    creep = np.abs(np.diff(res.positions[3000:5000], axis=0)).max(axis=1)
+    assert creep[-1] < 1e-6 * creep[0]  # converging, not drifting
+    # a 0.2 bar release stays inside the friction cone: every lamella sticks, nothing moves
+    held = res.positions[5002:]
+    assert_allclose(held, np.broadcast_to(held[0], held.shape), rtol=0, atol=1e-16)  # m
     assert res.pressure_difference[-1] > 0.05 * 40e5  # persistent P_diff (never decays)
+    assert res.torque[-1] < reference_torque(truth, 39.8e5, 35.0, W10) * 0.97
 
 
 def test_coulomb_never_injects_energy(truth):
@@ -141,9 +147,11 @@ def test_coulomb_never_injects_energy(truth):
 
 def test_coulomb_is_frictionless_without_torque(truth):
     t = np.arange(0.0, 2.0, 1e-3)
-    res = simulate(truth, t, np.where(t > 0.5, 40e5, 0.0), 0.0, 35.0)  # zero slip: T = 0
+    p = np.where(t > 0.5, 40e5, 0.0)
+    res = simulate(truth, t, p, 0.0, 35.0)  # zero slip: no torque, no spline load
+    free = simulate(truth.replace(**{"spline.law": "none"}), t, p, 0.0, 35.0)
     assert np.all(res.spline_force == 0.0)
-    assert_allclose(res.normal_force[-1], 40e5 * truth.pack.piston_area, rtol=1e-9)
+    assert_allclose(res.normal_force, free.normal_force, rtol=1e-14, atol=0)
 
 
 def test_coulomb_dt_independent(truth):
@@ -169,7 +177,7 @@ def test_coulomb_active_set_equals_projected_gauss_seidel(truth):
         law.set_warm_state(None)
         f_as = law._solve(entry, f_stick, bound)
         f_gs = law._gauss_seidel(entry, f_stick, bound)
-        assert_allclose(f_as, f_gs, rtol=0, atol=1e-6)  # N; PGS tolerance 1e-13 * scale
+        assert_allclose(f_as, f_gs, rtol=0, atol=1e-9)  # N: both end in the same exact solve
         dz = entry.coulomb_g @ (f_as - f_stick)
         stuck = np.abs(f_as) < bound * (1 - 1e-9)
         assert_allclose(dz[stuck], 0.0, atol=1e-18)  # m: stuck plates do not move
@@ -199,7 +207,3 @@ def test_hysteresis_24s_triangle_zero_for_thesis_laws_clear_for_coulomb(flexifor
     seq = ramp_sequence(24.0, 10.0, 2e-3)
     res = simulate(truth, seq.t, seq.actuating_pressure, seq.slip_speed, 35.0)
     assert hysteresis_width(seq.actuating_pressure, res.torque, 20e5) > widths["ff_t"]
-
-
-def test_viscous_and_coulomb_types():
-    assert ViscousLaw.name == "ff_v" and CoulombLaw.name == "coulomb"

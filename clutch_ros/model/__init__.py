@@ -1,0 +1,116 @@
+"""Model core of clutch_ros: the wet lamella-pack torque model in pure numpy/scipy.
+
+No ROS, CAN, bag or file I/O here (``clutch_ros.params_file`` reads the YAML). Units are SI
+(pressure Pa, force N, torque N m, speed rad/s, time s) with temperatures in °C; every module
+documents its quantities. Main entry points:
+
+- :class:`ClutchParams` (+ :data:`PARAMETER_SPECS`): validated parameters, DESIGN.md keys.
+- :func:`friction_coefficient`, :func:`reference_torque` (Eq. 1), :func:`torque_capacity`.
+- :func:`slip_speed_from_wheels` (Eq. 4), :func:`slip_speed_from_shafts`,
+  :func:`base_speed`, :class:`SlipFilter`.
+- :class:`PackModel` (Eqs. 11-27, exact ZOH) with spline laws from :func:`make_spline_law`
+  (``none``, ``ff_t`` Eq. 29, ``ff_v`` Eq. 30, ``coulomb``); :func:`simulate` for series.
+- :func:`pressure_for_torque` / :func:`solve_pressure`: the inverse.
+- :class:`ClutchEstimator` / :func:`estimate_batch`: the per-sample estimator.
+- :mod:`~clutch_ros.model.metrics` and :mod:`~clutch_ros.model.sequences` (Tables 3-4).
+"""
+
+from clutch_ros.model.errors import (
+    DuplicateSample,
+    InputError,
+    ModelError,
+    NonFiniteSample,
+    OutOfOrderSample,
+    ParameterError,
+    SampleRejected,
+    UnreachableTorqueError,
+)
+from clutch_ros.model.estimator import ClutchEstimator, Estimate, EstimateBatch, estimate_batch
+from clutch_ros.model.friction import (
+    friction_coefficient,
+    reference_torque,
+    slip_sign,
+    torque_capacity,
+)
+from clutch_ros.model.inverse import (
+    PressureSolution,
+    pressure_for_torque,
+    pressure_for_torque_array,
+    solve_pressure,
+)
+from clutch_ros.model.metrics import (
+    CrossCorrelation,
+    accuracy_summary,
+    cross_correlation,
+    hysteresis_width,
+    overshoot,
+    request_accuracy,
+    rmse,
+    torque_accuracy,
+    undershoot,
+    within_band,
+)
+from clutch_ros.model.pack import PackModel, PackSample, PackState
+from clutch_ros.model.params import (
+    NAMESPACES,
+    PARAMETER_SPECS,
+    SPLINE_LAWS,
+    TABLE7,
+    ClutchParams,
+    FrictionParams,
+    PackParams,
+    ParamSpec,
+    SlipParams,
+    SplineParams,
+    Table7Entry,
+)
+from clutch_ros.model.sequences import (
+    SEQUENCE_NAMES,
+    Sequence,
+    concatenate,
+    incremented_step_sequence,
+    make_sequence,
+    pbd_sequence,
+    ramp_sequence,
+    rpm_to_rad_s,
+    step_sequence,
+    table3,
+    table4,
+)
+from clutch_ros.model.simulate import SimulationResult, simulate
+from clutch_ros.model.slip import (
+    SlipFilter,
+    base_speed,
+    lowpass_series,
+    slip_speed_from_shafts,
+    slip_speed_from_wheels,
+)
+from clutch_ros.model.spline import SplineLaw, make_spline_law
+from clutch_ros.model.statespace import build_state_space, static_gain, zoh_discretize
+
+__all__ = [
+    # errors
+    "ModelError", "ParameterError", "InputError", "SampleRejected", "NonFiniteSample",
+    "OutOfOrderSample", "DuplicateSample", "UnreachableTorqueError",
+    # parameters
+    "ClutchParams", "PackParams", "FrictionParams", "SplineParams", "SlipParams", "ParamSpec",
+    "PARAMETER_SPECS", "NAMESPACES", "SPLINE_LAWS", "TABLE7", "Table7Entry",
+    # friction, reference, slip
+    "friction_coefficient", "reference_torque", "torque_capacity", "slip_sign",
+    "slip_speed_from_wheels", "slip_speed_from_shafts", "base_speed", "SlipFilter",
+    "lowpass_series",
+    # pack
+    "PackModel", "PackSample", "PackState", "SplineLaw", "make_spline_law",
+    "build_state_space", "static_gain", "zoh_discretize", "simulate", "SimulationResult",
+    # inverse
+    "pressure_for_torque", "pressure_for_torque_array", "solve_pressure", "PressureSolution",
+    # estimator
+    "ClutchEstimator", "Estimate", "EstimateBatch", "estimate_batch",
+    # metrics
+    "torque_accuracy", "request_accuracy", "overshoot", "undershoot", "rmse", "within_band",
+    "cross_correlation", "CrossCorrelation", "hysteresis_width", "accuracy_summary",
+    # sequences
+    "Sequence", "SEQUENCE_NAMES", "make_sequence", "step_sequence",
+    "incremented_step_sequence", "ramp_sequence", "pbd_sequence", "table3", "table4",
+    "concatenate", "rpm_to_rad_s",
+]

@@ -1,0 +1,313 @@
+"""The per-sample clutch torque estimator, shared by the ROS node, bag replay and tests.
+
+:class:`ClutchEstimator` turns timestamped samples (actuating pressure [Pa], lamella
+temperature [°C], slip speed ω_diff [rad/s], optional measured torque [N m]) into
+:class:`Estimate` records whose fields mirror the ``ClutchEstimate`` message.
+
+Per sample:
+
+1. Validation, before any state changes: stamp, pressure, temperature and slip speed must be
+   finite (:class:`NonFiniteSample`); the measured torque may be NaN (= no measurement) but
+   not ±inf; the stamp must be later than the last accepted one (:class:`OutOfOrderSample`,
+   :class:`DuplicateSample`). A rejected sample leaves the estimator exactly as it was.
+2. Time: dt = stamp − last accepted stamp. The first sample, and any sample after a gap
+   longer than ``max_gap_s`` (default 1 s; e.g. a paused bag or a dropped link), initialise
+   the pack to the static equilibrium at the sample's pressure with no spline force and the
+   slip filter to the sample's slip (``reinitialised=True``): after a long gap the held-input
+   assumption is meaningless, and equilibrium is the best guess.
+3. The slip speed is low-passed (``slip.filter_time_constant``, the "filtered Diff Omega" the
+   friction model uses), then the pack takes one exact ZOH step.
+4. Accuracy = measured / modelled (NaN without a measurement or when |modelled| <
+   ``accuracy_min_torque``, default 1 N m); overshoot / undershoot: accuracy > 1.1 / < 0.9.
+
+:func:`estimate_batch` gives the same result as looping :meth:`ClutchEstimator.update` over
+arrays (rejected samples raise, or with ``on_reject="skip"`` give NaN rows), running the pack
+through :func:`~clutch_ros.model.simulate.simulate`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from clutch_ros.model.errors import (
+    DuplicateSample,
+    InputError,
+    NonFiniteSample,
+    OutOfOrderSample,
+)
+from clutch_ros.model.pack import PackModel
+from clutch_ros.model.simulate import simulate
+from clutch_ros.model.slip import SlipFilter, lowpass_series
+
+__all__ = ["ClutchEstimator", "Estimate", "EstimateBatch", "estimate_batch"]
+
+
+@dataclass(slots=True)
+class Estimate:
+    """One estimate (mirrors msg ``ClutchEstimate``; arrays rear → front, shape (N,)).
+
+    Attributes:
+        stamp: sample time [s]
+        modelled_torque: pack torque, Eq. 27, signed like the slip [N m]
+        reference_torque: steady-state torque, Eq. 1 with the same μ [N m]
+        measured_torque: as given, NaN if absent [N m]
+        torque_accuracy: measured / modelled, NaN if undefined
+        friction_coefficient: μ [-]
+        lamella_normal_force: S_n [N]
+        spline_friction_force: F_fn [N]
+        front_pressure, rear_pressure, pressure_difference: [Pa]
+        slip_speed_filtered: filtered ω_diff used by the model [rad/s]
+        spline_law: law name
+        overshoot, undershoot: accuracy > 1.1, < 0.9
+        actuating_pressure: input [Pa]; lamella_temperature: input [°C];
+        slip_speed: raw input [rad/s]; compression: z_N [m]
+        spline_correction: pressure equivalent of the spline loss [Pa]
+        reinitialised: the pack was (re)initialised to equilibrium at this sample
+
+    """
+
+    stamp: float
+    modelled_torque: float
+    reference_torque: float
+    measured_torque: float
+    torque_accuracy: float
+    friction_coefficient: float
+    lamella_normal_force: np.ndarray
+    spline_friction_force: np.ndarray
+    front_pressure: float
+    rear_pressure: float
+    pressure_difference: float
+    slip_speed_filtered: float
+    spline_law: str
+    overshoot: bool
+    undershoot: bool
+    actuating_pressure: float
+    lamella_temperature: float
+    slip_speed: float
+    compression: float
+    spline_correction: float
+    reinitialised: bool
+
+
+def _accuracy(measured: float, modelled: float, floor: float) -> float:
+    if math.isnan(measured) or not abs(modelled) >= floor:
+        return math.nan
+    return measured / modelled
+
+
+class ClutchEstimator:
+    """Per-sample estimator (module docstring).
+
+    Args:
+        params: :class:`~clutch_ros.model.params.ClutchParams`.
+        max_gap_s: a larger gap between stamps re-initialises to equilibrium [s].
+        accuracy_min_torque: below this |modelled| the accuracy is NaN [N m].
+        overshoot_limit, undershoot_limit: accuracy thresholds (1.1, 0.9).
+
+    """
+
+    def __init__(self, params, *, max_gap_s: float = 1.0, accuracy_min_torque: float = 1.0,
+                 overshoot_limit: float = 1.1, undershoot_limit: float = 0.9,
+                 dt_resolution: float = 1e-5):
+        if not (max_gap_s > 0.0 and accuracy_min_torque >= 0.0):
+            raise InputError(f"max_gap_s must be > 0 and accuracy_min_torque >= 0, got "
+                             f"{max_gap_s!r}, {accuracy_min_torque!r}")
+        self.params = params
+        self.max_gap_s = float(max_gap_s)
+        self.accuracy_min_torque = float(accuracy_min_torque)
+        self.overshoot_limit = float(overshoot_limit)
+        self.undershoot_limit = float(undershoot_limit)
+        self.pack = PackModel(params, dt_resolution=dt_resolution)
+        self.slip_filter = SlipFilter(params.slip.filter_time_constant)
+        self.last_stamp: float | None = None
+
+    @property
+    def spline_law(self) -> str:
+        """Name of the spline-friction law in use."""
+        return self.params.spline.law
+
+    def reset(self) -> None:
+        """Forget the history; the next sample initialises."""
+        self.last_stamp = None
+        self.slip_filter.reset()
+
+    def set_params(self, params) -> None:
+        """Apply new parameters at runtime, keeping the pack state where its shape allows."""
+        self.pack.set_params(params)
+        self.slip_filter.time_constant = params.slip.filter_time_constant
+        self.params = params
+
+    def check(self, stamp_s: float, actuating_pressure: float, lamella_temperature: float,
+              slip_speed: float, measured_torque: float = math.nan) -> None:
+        """Raise the SampleRejected subclass ``update`` would raise; never changes state."""
+        try:
+            values = [float(v) for v in (stamp_s, actuating_pressure, lamella_temperature,
+                                         slip_speed, measured_torque)]
+        except (TypeError, ValueError) as err:
+            raise NonFiniteSample(f"sample values must be numbers: {err}") from err
+        if not all(math.isfinite(v) for v in values[:4]) or math.isinf(values[4]):
+            raise NonFiniteSample(
+                f"non-finite sample: stamp={stamp_s!r}, actuating_pressure="
+                f"{actuating_pressure!r}, lamella_temperature={lamella_temperature!r}, "
+                f"slip_speed={slip_speed!r}, measured_torque={measured_torque!r}")
+        if self.last_stamp is not None:
+            if values[0] < self.last_stamp:
+                raise OutOfOrderSample(f"stamp {values[0]!r} s is older than the last "
+                                       f"accepted {self.last_stamp!r} s")
+            if values[0] == self.last_stamp:
+                raise DuplicateSample(f"stamp {values[0]!r} s repeats the last accepted one")
+
+    def update(self, stamp_s: float, actuating_pressure: float, lamella_temperature: float,
+               slip_speed: float, measured_torque: float = math.nan) -> Estimate:
+        """Process one sample; return its estimate or raise SampleRejected (state untouched)."""
+        self.check(stamp_s, actuating_pressure, lamella_temperature, slip_speed,
+                   measured_torque)
+        stamp, p = float(stamp_s), float(actuating_pressure)
+        temp, omega = float(lamella_temperature), float(slip_speed)
+        measured = float(measured_torque)
+        last = self.last_stamp
+        reinit = last is None or stamp - last > self.max_gap_s
+        if reinit:
+            self.slip_filter.reset(omega)
+            omega_f = omega
+            self.pack.reset(p, temp, omega_f)
+            sample = self.pack.output(p, omega_f, temp)
+        else:
+            dt = stamp - last
+            omega_f = self.slip_filter.update(dt, omega)
+            sample = self.pack.step(dt, p, omega_f, temp)
+        self.last_stamp = stamp
+        acc = _accuracy(measured, sample.torque, self.accuracy_min_torque)
+        return Estimate(
+            stamp, sample.torque, sample.reference_torque, measured, acc, sample.mu,
+            sample.normal_force, sample.spline_force, sample.front_pressure,
+            sample.rear_pressure, sample.pressure_difference, omega_f, self.params.spline.law,
+            acc > self.overshoot_limit, acc < self.undershoot_limit, p, temp, omega,
+            sample.compression, self.pack.spline_correction(), reinit)
+
+
+@dataclass
+class EstimateBatch:
+    """Estimates over n samples: the fields of :class:`Estimate` as arrays.
+
+    Shapes: (n,) except ``lamella_normal_force`` and ``spline_friction_force`` (n, N).
+    ``accepted`` is False for rejected samples (their rows are NaN / False);
+    ``spline_law`` is a string.
+    """
+
+    stamp: np.ndarray
+    accepted: np.ndarray
+    reinitialised: np.ndarray
+    modelled_torque: np.ndarray
+    reference_torque: np.ndarray
+    measured_torque: np.ndarray
+    torque_accuracy: np.ndarray
+    friction_coefficient: np.ndarray
+    lamella_normal_force: np.ndarray
+    spline_friction_force: np.ndarray
+    front_pressure: np.ndarray
+    rear_pressure: np.ndarray
+    pressure_difference: np.ndarray
+    slip_speed_filtered: np.ndarray
+    overshoot: np.ndarray
+    undershoot: np.ndarray
+    actuating_pressure: np.ndarray
+    lamella_temperature: np.ndarray
+    slip_speed: np.ndarray
+    compression: np.ndarray
+    spline_correction: np.ndarray
+    spline_law: str
+
+    def __len__(self) -> int:
+        return int(self.stamp.size)
+
+
+def _rejections(t, p, temp, omega, measured):
+    finite = (np.isfinite(t) & np.isfinite(p) & np.isfinite(temp) & np.isfinite(omega)
+              & ~np.isinf(measured))
+    prev = np.maximum.accumulate(np.where(finite, t, -np.inf))
+    prev = np.concatenate([[-np.inf], prev[:-1]])
+    accepted = finite & (t > prev)
+    kinds = np.where(~finite, 1, np.where(t == prev, 2, np.where(t < prev, 3, 0)))
+    return accepted, kinds
+
+
+def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_speed,
+                   measured_torque=None, *, max_gap_s: float = 1.0,
+                   accuracy_min_torque: float = 1.0, overshoot_limit: float = 1.1,
+                   undershoot_limit: float = 0.9, on_reject: str = "raise",
+                   model: PackModel | None = None) -> EstimateBatch:
+    """Estimate a whole series; identical to looping ``ClutchEstimator.update()``.
+
+    Inputs broadcast to ``t``'s shape (1-D stamps [s]); ``measured_torque`` None means no
+    measurement. ``on_reject``: ``"raise"`` raises the first sample's SampleRejected, like an
+    update loop that does not catch; ``"skip"`` leaves NaN rows (``accepted`` False), like one
+    that catches and continues.
+    """
+    if on_reject not in ("raise", "skip"):
+        raise InputError(f"on_reject must be 'raise' or 'skip', got {on_reject!r}")
+    t = np.asarray(t, dtype=float)
+    if t.ndim != 1:
+        raise InputError(f"t must be 1-D, got shape {t.shape}")
+    meas = np.nan if measured_torque is None else measured_torque
+    try:
+        p, temp, omega, meas = (np.broadcast_to(np.asarray(v, dtype=float), t.shape).copy()
+                                for v in (actuating_pressure, lamella_temperature, slip_speed,
+                                          meas))
+    except ValueError as err:
+        raise InputError(f"inputs do not broadcast to t's shape {t.shape}: {err}") from err
+    n = t.size
+    accepted, kinds = _rejections(t, p, temp, omega, meas)
+    if on_reject == "raise" and not accepted.all():
+        i = int(np.flatnonzero(~accepted)[0])
+        cls = {1: NonFiniteSample, 2: DuplicateSample, 3: OutOfOrderSample}[int(kinds[i])]
+        raise cls(f"sample {i} rejected (stamp {t[i]!r})")
+    n_lam = params.pack.lamella_count
+    nan = np.full(n, np.nan)
+    out = {name: nan.copy() for name in (
+        "modelled_torque", "reference_torque", "torque_accuracy", "friction_coefficient",
+        "front_pressure", "rear_pressure", "pressure_difference", "slip_speed_filtered",
+        "compression")}
+    normal = np.full((n, n_lam), np.nan)
+    spline = np.full((n, n_lam), np.nan)
+    reinit = np.zeros(n, dtype=bool)
+    idx = np.flatnonzero(accepted)
+    if idx.size:
+        ta = t[idx]
+        starts = np.concatenate([[0], np.flatnonzero(np.diff(ta) > max_gap_s) + 1, [ta.size]])
+        model = model if model is not None else PackModel(params)
+        for a, b in zip(starts[:-1].tolist(), starts[1:].tolist()):
+            rows = idx[a:b]
+            omega_f = lowpass_series(t[rows], omega[rows], params.slip.filter_time_constant)
+            sim = simulate(params, t[rows], p[rows], omega_f, temp[rows], model=model)
+            reinit[rows[0]] = True
+            out["modelled_torque"][rows] = sim.torque
+            out["reference_torque"][rows] = sim.reference_torque
+            out["friction_coefficient"][rows] = sim.mu
+            out["front_pressure"][rows] = sim.front_pressure
+            out["rear_pressure"][rows] = sim.rear_pressure
+            out["pressure_difference"][rows] = sim.pressure_difference
+            out["slip_speed_filtered"][rows] = omega_f
+            out["compression"][rows] = sim.compression
+            normal[rows] = sim.normal_force
+            spline[rows] = sim.spline_force
+    mod = out["modelled_torque"]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ok = accepted & ~np.isnan(meas) & (np.abs(mod) >= accuracy_min_torque)
+        acc = np.where(ok, meas / np.where(ok, mod, 1.0), np.nan)
+    out["torque_accuracy"] = acc
+    weights = np.arange(1, n_lam + 1, dtype=float)
+    out["spline_correction"] = spline @ weights / (n_lam * params.pack.piston_area)
+    with np.errstate(invalid="ignore"):
+        over, under = acc > overshoot_limit, acc < undershoot_limit
+    return EstimateBatch(
+        stamp=t.copy(), accepted=accepted, reinitialised=reinit,
+        measured_torque=np.where(accepted, meas, np.nan), lamella_normal_force=normal,
+        spline_friction_force=spline, overshoot=over, undershoot=under,
+        actuating_pressure=np.where(accepted, p, np.nan),
+        lamella_temperature=np.where(accepted, temp, np.nan),
+        slip_speed=np.where(accepted, omega, np.nan), spline_law=params.spline.law, **out)
+

@@ -1,0 +1,128 @@
+"""Inverse model: the actuating pressure that gives a requested torque.
+
+Steady state (Eq. 1 with μ's pressure dependence): solve ``C(p) = |T*|`` for p on
+``[0, clutch.max_pressure]`` with ``C(p) = 2 R_e N A p μ(T, p, ω)`` the torque capacity
+(:func:`~clutch_ros.model.friction.torque_capacity`), by ``scipy.optimize.brentq``. C is
+continuous and strictly increasing on that interval (guaranteed by a parameter check, see
+:class:`~clutch_ros.model.params.ClutchParams`), so the root is unique. The slip speed enters
+through μ only (|ω|; the torque request is a magnitude, the direction is the slip's), so a
+request at zero slip commands the static-friction capacity.
+
+Requests: ``torque`` [N m] must be finite and ≥ 0 (controller requests are magnitudes);
+0 N m commands 0 Pa. Unreachable requests (above C(max_pressure)): clamped to
+``max_pressure`` by default (``limited`` / ``reason`` say so), or
+:class:`~clutch_ros.model.errors.UnreachableTorqueError` with ``clamp=False``.
+
+Dynamic correction: the controller adds ``spline_correction`` [Pa], the pressure equivalent
+of the pack's current spline-friction loss (:meth:`PackModel.spline_correction`); the sum is
+clamped to ``[0, max_pressure]``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import brentq
+
+from clutch_ros.model.errors import InputError, UnreachableTorqueError
+from clutch_ros.model.friction import mu_scalar
+
+__all__ = ["PressureSolution", "solve_pressure", "pressure_for_torque",
+           "pressure_for_torque_array", "capacity_scalar"]
+
+
+@dataclass(frozen=True)
+class PressureSolution:
+    """Result of the inverse.
+
+    Attributes:
+        pressure: commanded actuating pressure, correction included, in [0, max] [Pa]
+        steady_state_pressure: p with C(p) = |T*| (or max_pressure if unreachable) [Pa]
+        correction: spline-friction correction requested [Pa]
+        predicted_torque: C(steady_state_pressure), the steady-state torque magnitude [N m]
+        limited: True if clamped (unreachable request or correction hit a bound)
+        reason: empty, or why the result is limited
+
+    """
+
+    pressure: float
+    steady_state_pressure: float
+    correction: float
+    predicted_torque: float
+    limited: bool
+    reason: str
+
+
+def capacity_scalar(params, pressure: float, lamella_temperature: float,
+                    slip_speed: float) -> float:
+    """Torque capacity C(p) = 2 R_e N A p μ [N m] for scalars (fast path of the inverse)."""
+    pk = params.pack
+    p = pressure if pressure > 0.0 else 0.0
+    mu = mu_scalar(params.friction, lamella_temperature, p, slip_speed)
+    return 2.0 * pk.effective_radius * pk.lamella_count * pk.piston_area * mu * p
+
+
+def solve_pressure(params, torque: float, lamella_temperature: float, slip_speed: float,
+                   spline_correction: float = 0.0, *, clamp: bool = True) -> PressureSolution:
+    """Solve the inverse (module docstring) and report how the result was obtained."""
+    try:
+        torque, lamella_temperature, slip_speed, spline_correction = (
+            float(torque), float(lamella_temperature), float(slip_speed),
+            float(spline_correction))
+    except (TypeError, ValueError) as err:
+        raise InputError(f"inverse needs numbers: {err}") from err
+    values = (torque, lamella_temperature, slip_speed, spline_correction)
+    if not all(math.isfinite(v) for v in values):
+        raise InputError(f"inverse needs finite numbers, got torque={torque!r}, "
+                         f"lamella_temperature={lamella_temperature!r}, "
+                         f"slip_speed={slip_speed!r}, spline_correction={spline_correction!r}")
+    if torque < 0.0:
+        raise InputError(f"torque request must be >= 0 N m (a magnitude), got {torque!r}")
+    p_max = params.pack.max_pressure
+    if torque == 0.0:
+        return PressureSolution(0.0, 0.0, spline_correction, 0.0, False, "")
+    reason = ""
+    cap_max = capacity_scalar(params, p_max, lamella_temperature, slip_speed)
+    if torque > cap_max:
+        if not clamp:
+            raise UnreachableTorqueError(f"{torque:.1f} N m exceeds the {cap_max:.1f} N m the "
+                                    f"clutch transmits at {p_max / 1e5:.1f} bar "
+                                    f"(T={lamella_temperature:.1f} degC, slip "
+                                    f"{slip_speed:.3f} rad/s)")
+        p_ss = p_max
+        reason = f"unreachable: {torque:.1f} N m > {cap_max:.1f} N m at max pressure"
+    else:
+        p_ss = brentq(lambda p: capacity_scalar(params, p, lamella_temperature, slip_speed)
+                      - torque, 0.0, p_max, xtol=1e-9, rtol=4 * np.finfo(float).eps,
+                      maxiter=200)
+    pressure = p_ss + spline_correction
+    if pressure > p_max:
+        pressure = p_max
+        reason = reason or "correction clamped at max pressure"
+    elif pressure < 0.0:
+        pressure = 0.0
+        reason = reason or "correction clamped at 0 Pa"
+    predicted = capacity_scalar(params, p_ss, lamella_temperature, slip_speed)
+    return PressureSolution(float(pressure), float(p_ss), float(spline_correction),
+                            float(predicted), bool(reason), reason)
+
+
+def pressure_for_torque(params, torque: float, lamella_temperature: float, slip_speed: float,
+                        spline_correction: float = 0.0, *, clamp: bool = True) -> float:
+    """Return the actuating pressure [Pa] for a torque request [N m] (module docstring)."""
+    return solve_pressure(params, torque, lamella_temperature, slip_speed, spline_correction,
+                          clamp=clamp).pressure
+
+
+def pressure_for_torque_array(params, torque, lamella_temperature, slip_speed,
+                              spline_correction=0.0, *, clamp: bool = True) -> np.ndarray:
+    """Vectorised :func:`pressure_for_torque` (inputs broadcast) [Pa]."""
+    arrays = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (
+        torque, lamella_temperature, slip_speed, spline_correction)))
+    out = np.empty(arrays[0].shape)
+    flat = [a.ravel().tolist() for a in arrays]
+    res = [pressure_for_torque(params, *vals, clamp=clamp) for vals in zip(*flat)]
+    out.reshape(-1)[:] = res
+    return out

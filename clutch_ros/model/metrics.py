@@ -1,0 +1,215 @@
+"""Validation metrics: torque accuracy, over/undershoot, RMSE, ±10 % band, Eq. 3, hysteresis.
+
+Torques in N m, pressures in Pa. All functions take array-likes and ignore samples where an
+input is NaN unless stated otherwise.
+
+Torque accuracy (thesis 1.2): ``measured / modelled`` (model quality) or ``measured /
+requested`` (control quality); NaN where the denominator's magnitude is below ``min_torque``
+(the ratio is meaningless near zero torque). Overshoot: accuracy > 1.1; undershoot: < 0.9.
+
+Cross-correlation (thesis Eq. 3, Ljung): ``R(τ) = 1/N Σ_t ε(t+τ) u(t)`` for lags −L…L, with
+ε the residual (measured − modelled) and u an input. Both are de-meaned first (the normal
+distribution with mean zero that Eq. 3 relies on needs zero-mean signals). If ε is white and
+independent of u, R(τ) is approximately normal with standard deviation σ_ε σ_u / √N, so the
+99 % confidence band is ±2.58 σ_ε σ_u / √N (z from the normal quantile of ``confidence``).
+Values outside the band indicate input-dependent dynamics the model misses. (For coloured
+residuals Ljung's band uses Σ_k R_ε(k) R_u(k) instead of σ_ε² σ_u²; this simpler band is what
+the thesis applies.) The normalised correlation R/(σ_ε σ_u) and its band ±z/√N are also given.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import norm
+
+from clutch_ros.model.errors import InputError
+
+__all__ = [
+    "torque_accuracy",
+    "request_accuracy",
+    "overshoot",
+    "undershoot",
+    "rmse",
+    "within_band",
+    "CrossCorrelation",
+    "cross_correlation",
+    "hysteresis_width",
+    "accuracy_summary",
+]
+
+
+def _ratio(num, den, min_torque):
+    num = np.asarray(num, dtype=float)
+    den = np.asarray(den, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ok = np.abs(den) >= min_torque
+        return np.where(ok, num / np.where(ok, den, 1.0), np.nan)
+
+
+def torque_accuracy(measured, modelled, min_torque: float = 1.0):
+    """Return measured / modelled; NaN where |modelled| < ``min_torque`` [N m] or NaN input."""
+    return _ratio(measured, modelled, min_torque)
+
+
+def request_accuracy(measured, requested, min_torque: float = 1.0):
+    """Return measured / requested; NaN where |requested| < ``min_torque`` [N m]."""
+    return _ratio(measured, requested, min_torque)
+
+
+def overshoot(accuracy, limit: float = 1.1):
+    """Return accuracy > ``limit`` (False for NaN)."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(accuracy, dtype=float) > limit
+
+
+def undershoot(accuracy, limit: float = 0.9):
+    """Return accuracy < ``limit`` (False for NaN)."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(accuracy, dtype=float) < limit
+
+
+def rmse(measured, modelled) -> float:
+    """Root mean square of (measured − modelled) over finite pairs [N m]; NaN if none."""
+    err = np.asarray(measured, dtype=float) - np.asarray(modelled, dtype=float)
+    err = err[np.isfinite(err)]
+    return float(np.sqrt(np.mean(err * err))) if err.size else float("nan")
+
+
+def within_band(measured, modelled, band: float = 0.1, threshold_fraction: float = 0.05,
+                min_torque: float = 1.0) -> float:
+    """Fraction of samples with accuracy in [1 − band, 1 + band].
+
+    Only samples where |measured| ≥ ``threshold_fraction`` × max |measured| count (the
+    accuracy is dominated by noise near zero torque). NaN if no sample counts.
+    """
+    meas = np.asarray(measured, dtype=float)
+    acc = torque_accuracy(meas, modelled, min_torque)
+    finite = np.isfinite(meas)
+    if not finite.any():
+        return float("nan")
+    threshold = threshold_fraction * float(np.max(np.abs(meas[finite])))
+    with np.errstate(invalid="ignore"):
+        counted = finite & (np.abs(meas) >= threshold)
+    if not counted.any():
+        return float("nan")
+    with np.errstate(invalid="ignore"):
+        inside = (acc >= 1.0 - band) & (acc <= 1.0 + band)
+    return float(np.count_nonzero(inside & counted) / np.count_nonzero(counted))
+
+
+@dataclass(frozen=True)
+class CrossCorrelation:
+    """Residual-input cross-correlation of Eq. 3 (module docstring).
+
+    Attributes:
+        lags: τ in samples, shape (2L + 1,)
+        r: R(τ) in units of residual × input
+        band: half width of the confidence band of r (same units)
+        normalized: R(τ) / (σ_ε σ_u), in [-1, 1]
+        band_normalized: z / √N
+        outside: fraction of lags with |r| > band
+        confidence: confidence level of the band (0.99)
+        samples: N
+
+    """
+
+    lags: np.ndarray
+    r: np.ndarray
+    band: float
+    normalized: np.ndarray
+    band_normalized: float
+    outside: float
+    confidence: float
+    samples: int
+
+
+def cross_correlation(residual, inputs, max_lag: int = 50,
+                      confidence: float = 0.99) -> CrossCorrelation:
+    """Eq. 3 for lags −max_lag…max_lag with its confidence band (samples with NaN dropped)."""
+    eps = np.asarray(residual, dtype=float)
+    u = np.asarray(inputs, dtype=float)
+    if eps.shape != u.shape or eps.ndim != 1:
+        raise InputError(f"residual and input must be 1-D of equal length, got {eps.shape} "
+                         f"and {u.shape}")
+    keep = np.isfinite(eps) & np.isfinite(u)
+    eps, u = eps[keep], u[keep]
+    n = eps.size
+    if n < 2 or not 0 <= max_lag < n:
+        raise InputError(f"need at least 2 samples and 0 <= max_lag < N, got N={n}, "
+                         f"max_lag={max_lag}")
+    if not 0.0 < confidence < 1.0:
+        raise InputError(f"confidence must be in (0, 1), got {confidence!r}")
+    eps = eps - eps.mean()
+    u = u - u.mean()
+    lags = np.arange(-max_lag, max_lag + 1)
+    r = np.empty(lags.size)
+    for i, lag in enumerate(lags.tolist()):
+        if lag >= 0:
+            r[i] = np.dot(eps[lag:], u[:n - lag]) / n
+        else:
+            r[i] = np.dot(eps[:n + lag], u[-lag:]) / n
+    scale = float(eps.std() * u.std())
+    z = float(norm.ppf(0.5 + confidence / 2.0))
+    band = z * scale / np.sqrt(n)
+    normalized = r / scale if scale > 0.0 else np.zeros_like(r)
+    outside = float(np.mean(np.abs(r) > band)) if scale > 0.0 else 0.0
+    return CrossCorrelation(lags, r, float(band), normalized, z / float(np.sqrt(n)), outside,
+                            float(confidence), int(n))
+
+
+def hysteresis_width(pressure, torque, at_pressure: float) -> float:
+    """Torque on the falling leg minus the rising leg at ``at_pressure`` [N m].
+
+    The legs are split at the pressure maximum; each leg is interpolated at ``at_pressure``
+    (the leg's pressure must be monotonic). Positive: more torque on the way down, the
+    spline-friction hysteresis of Tables 5-6.
+    """
+    p = np.asarray(pressure, dtype=float)
+    tq = np.asarray(torque, dtype=float)
+    top = int(np.argmax(p))
+    up_p, up_t = p[:top + 1], tq[:top + 1]
+    dn_p, dn_t = p[top:][::-1], tq[top:][::-1]
+    for leg in (up_p, dn_p):
+        if np.any(np.diff(leg) < 0.0) or not leg[0] <= at_pressure <= leg[-1]:
+            raise InputError(f"pressure legs must be monotonic and span {at_pressure!r} Pa")
+    rise = np.interp(at_pressure, *_strict(up_p, up_t, last=True))
+    fall = np.interp(at_pressure, *_strict(dn_p, dn_t, last=False))
+    return float(fall - rise)
+
+
+def _strict(p, t, last):
+    """Keep one sample per plateau of equal pressure, the one latest in time (settled).
+
+    ``last``: the array runs forward in time (keep the last of a run), else backward.
+    """
+    step = np.diff(p) > 0.0
+    keep = np.append(step, True) if last else np.insert(step, 0, True)
+    return p[keep], t[keep]
+
+
+def accuracy_summary(measured, modelled, reference=None, threshold_fraction: float = 0.05,
+                     min_torque: float = 1.0) -> dict:
+    """Return the replay/demo numbers as a dict.
+
+    Keys: samples, rmse_nm, reference_rmse_nm, within_10pct, max_accuracy, min_accuracy
+    (the accuracy extremes over the samples counted by :func:`within_band`).
+    """
+    meas = np.asarray(measured, dtype=float)
+    acc = torque_accuracy(meas, modelled, min_torque)
+    finite = np.isfinite(meas)
+    counted = np.zeros(meas.shape, dtype=bool)
+    if finite.any():
+        threshold = threshold_fraction * float(np.max(np.abs(meas[finite])))
+        with np.errstate(invalid="ignore"):
+            counted = finite & (np.abs(meas) >= threshold) & np.isfinite(acc)
+    sel = acc[counted]
+    return {
+        "samples": int(meas.size),
+        "rmse_nm": rmse(meas, modelled),
+        "reference_rmse_nm": rmse(meas, reference) if reference is not None else float("nan"),
+        "within_10pct": within_band(meas, modelled, 0.1, threshold_fraction, min_torque),
+        "max_accuracy": float(sel.max()) if sel.size else float("nan"),
+        "min_accuracy": float(sel.min()) if sel.size else float("nan"),
+    }

@@ -1,0 +1,75 @@
+"""Metrics: accuracy ratios and flags, RMSE, the ±10 % band, Eq. 3 with its band, hysteresis."""
+
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from clutch_ros.model import (
+    InputError,
+    accuracy_summary,
+    cross_correlation,
+    hysteresis_width,
+    overshoot,
+    request_accuracy,
+    rmse,
+    torque_accuracy,
+    undershoot,
+    within_band,
+)
+
+
+def test_accuracy_ratios_and_flags():
+    acc = torque_accuracy([110.0, 90.0, 5.0, math.nan, 0.5], [100.0, 100.0, 0.5, 100.0, 100.0])
+    assert_allclose(acc, [1.1, 0.9, math.nan, math.nan, 0.005], rtol=1e-15)  # |modelled|<1: NaN
+    assert_allclose(request_accuracy([1200.0], [1000.0]), [1.2], rtol=1e-15)
+    assert list(overshoot([1.11, 1.1, math.nan, 0.5])) == [True, False, False, False]
+    assert list(undershoot([0.89, 0.9, math.nan, 1.5])) == [True, False, False, False]
+
+
+def test_rmse_closed_form():
+    assert rmse([1.0, 2.0, 3.0], [1.0, 0.0, 6.0]) == math.sqrt((0 + 4 + 9) / 3)
+    assert rmse([1.0, math.nan], [3.0, 1.0]) == 2.0  # NaN pairs dropped
+    assert math.isnan(rmse([math.nan], [1.0]))
+
+
+def test_within_band_counts_only_above_threshold():
+    measured = np.array([1000.0, 1000.0, 1000.0, 1000.0, 10.0, 10.0])
+    modelled = np.array([1000.0, 1050.0, 1200.0, 850.0, 100.0, 100.0])
+    # the 10 N m samples are below 5 % of 1000 and do not count: 2 of 4 inside [0.9, 1.1]
+    assert within_band(measured, modelled) == 0.5
+    summary = accuracy_summary(measured, modelled, reference=measured)
+    assert summary["within_10pct"] == 0.5 and summary["reference_rmse_nm"] == 0.0
+    assert_allclose([summary["max_accuracy"], summary["min_accuracy"]],
+                    [1000 / 850, 1000 / 1200], rtol=1e-15)
+    assert summary["samples"] == 6
+
+
+def test_cross_correlation_formula_and_band():
+    rng = np.random.default_rng(4)
+    n = 4000
+    u = rng.normal(0.0, 2.0, n)
+    eps = rng.normal(0.0, 0.5, n)
+    cc = cross_correlation(eps, u, max_lag=20)
+    e0, u0 = eps - eps.mean(), u - u.mean()
+    assert_allclose(cc.r[cc.lags == 3], np.dot(e0[3:], u0[:-3]) / n, rtol=1e-12)  # Eq. 3
+    assert_allclose(cc.r[cc.lags == -2], np.dot(e0[:-2], u0[2:]) / n, rtol=1e-12)
+    assert_allclose(cc.band, 2.5758 * e0.std() * u0.std() / math.sqrt(n), rtol=1e-4)  # 99 %
+    assert cc.outside <= 3 / 41  # independent: ~1 % of lags outside, allow a few
+    # a residual that contains the input delayed by 5 samples is caught at lag 5
+    leak = eps.copy()
+    leak[5:] += 0.3 * u[:-5]
+    cc = cross_correlation(leak, u, max_lag=20)
+    assert cc.lags[np.argmax(np.abs(cc.r))] == 5 and abs(cc.r[cc.lags == 5][0]) > 5 * cc.band
+    with pytest.raises(InputError):
+        cross_correlation(eps, u[:-1])
+
+
+def test_hysteresis_width_on_a_synthetic_loop():
+    p = np.concatenate([np.linspace(0, 40e5, 101), np.linspace(40e5, 0, 101)[1:]])
+    torque = p * 3e-4
+    torque[101:] *= 1.1  # 10 % more torque on the way down
+    assert_allclose(hysteresis_width(p, torque, 20e5), 0.1 * 20e5 * 3e-4, rtol=1e-12)
+    with pytest.raises(InputError):
+        hysteresis_width(p, torque, 50e5)

@@ -1,0 +1,82 @@
+"""simulate() equals looping step(); input validation of series."""
+
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from clutch_ros.model import (
+    DuplicateSample,
+    InputError,
+    NonFiniteSample,
+    OutOfOrderSample,
+    PackModel,
+    simulate,
+)
+from clutch_ros.model.sequences import concatenate, pbd_sequence, ramp_sequence
+
+FIELDS = ("torque", "reference_torque", "mu", "normal_force", "spline_force", "front_pressure",
+          "rear_pressure", "pressure_difference", "compression")
+
+
+def _inputs():
+    # ramp + PBD slip reversal, jittery stamps (whole microseconds and not), rising temperature
+    seq = concatenate([ramp_sequence(4.0, 30.0, 1e-3, lead_out=0.5),
+                       pbd_sequence(10.0, 35.0, 1e-3, lead_in=0.2, lead_out=0.5)])
+    rng = np.random.default_rng(5)
+    t = seq.t + rng.uniform(-3e-4, 3e-4, seq.t.size)
+    t[0] = 0.0
+    temp = 35.0 + 20.0 * seq.t / seq.t[-1]
+    return t, seq.actuating_pressure, seq.slip_speed, temp
+
+
+@pytest.mark.parametrize("law", ["none", "ff_t", "ff_v", "coulomb"])
+def test_simulate_equals_step_loop(flexiforce, law):
+    params = flexiforce.with_law(law)
+    t, p, w, temp = _inputs()
+    res = simulate(params, t, p, w, temp)
+    model = PackModel(params)
+    model.reset(p[0], temp[0], w[0])
+    samples = [model.output(p[0], w[0], temp[0])]
+    samples += [model.step(t[k] - t[k - 1], p[k], w[k], temp[k]) for k in range(1, t.size)]
+    for name in FIELDS:
+        loop = np.array([getattr(s, name) for s in samples])
+        scale = max(np.abs(loop).max(), 1e-300)
+        # same kernel; only mu is computed vectorised (may differ in the last bit)
+        assert_allclose(getattr(res, name), loop, rtol=0, atol=1e-9 * scale, err_msg=name)
+    assert res.law == law and len(res) == t.size
+    assert res.normal_force.shape == (t.size, 8) and res.positions.shape == (t.size, 8)
+
+
+def test_initial_pressure_and_scalars(flexiforce):
+    t = np.arange(0.0, 0.2, 1e-3)
+    res = simulate(flexiforce, t, 40e5, 1.0, 35.0, initial_pressure=0.0)
+    assert res.compression[0] == 0.0 and res.compression[-1] > 0.0
+    res = simulate(flexiforce, t, 40e5, 1.0, 35.0)  # default: start at equilibrium at p[0]
+    assert_allclose(res.compression, res.compression[0], rtol=1e-12)
+    single = simulate(flexiforce, [0.0], 20e5, 1.0, 35.0)
+    assert len(single) == 1
+
+
+@pytest.mark.parametrize("t, p, err", [
+    ([0.0, 1e-3, math.nan], 1e5, NonFiniteSample),
+    ([0.0, 1e-3, 2e-3], [1e5, math.inf, 1e5], NonFiniteSample),
+    ([0.0, 2e-3, 1e-3], 1e5, OutOfOrderSample),
+    ([0.0, 1e-3, 1e-3], 1e5, DuplicateSample),
+    ([0.0, 1e-3, 2e-3], [1e5, 1e5], InputError),
+    ([], 1e5, InputError),
+    ([[0.0, 1e-3]], 1e5, InputError),
+])
+def test_bad_series_rejected(flexiforce, t, p, err):
+    with pytest.raises(err):
+        simulate(flexiforce, t, p, 1.0, 35.0)
+
+
+def test_model_reuse_keeps_cache(flexiforce):
+    model = PackModel(flexiforce)
+    t = np.arange(0.0, 0.5, 1e-3)
+    a = simulate(flexiforce, t, 30e5, 1.0, 35.0, model=model)
+    assert len(model._cache) == 1
+    b = simulate(flexiforce, t, 30e5, 1.0, 35.0, model=model)
+    assert_allclose(a.torque, b.torque, rtol=0, atol=0)  # reset each time: same result
