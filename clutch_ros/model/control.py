@@ -5,19 +5,18 @@ pressure [Pa], temperature [°C], slip speed [rad/s].
 
 The law, for a torque target ``T*``:
 
-1. steady-state inverse ``p_ss = inverse(T*)`` (Eq. 1 with the friction coefficient's
-   pressure dependence, :func:`clutch_ros.model.pressure_for_torque`);
-2. dynamic spline-friction correction: the estimator reports, at the current actuating
-   pressure ``p``, what the pack transmits (``T_model``, Eq. 27 with the spline-friction state)
-   and what the steady-state model would give (``T_ref``, Eq. 1). Their difference is torque
-   the pack currently loses (compression: ``T_model < T_ref``) or holds on to (rebound:
-   ``T_model > T_ref``). It is converted to pressure with the local slope ``dT_ref/dp`` and
-   added, scaled by ``correction_gain``. Choice: the correction uses the state at the *current*
-   pressure rather than re-simulating the pack at ``p_ss``, because the spline-friction state
-   changes slowly compared with the control period and this keeps the law O(1) per tick;
-3. overshoot guard: the pressure never exceeds ``inverse((1 + margin) * guard_torque)``, since
-   overshoot is the worse failure (thesis §1.2);
-4. a request of 0 N m (or below) commands 0 Pa.
+1. steady-state inverse plus dynamic correction,
+   :func:`clutch_ros.model.inverse.solve_pressure`: ``p = inverse(T*) + g * c`` where ``c``
+   is the estimator's ``spline_correction`` (the pressure equivalent of the pack's current
+   spline-friction loss, :meth:`PackModel.spline_correction`: positive while the pack is
+   compressed against spline friction, negative while friction holds it compressed on
+   rebound) and ``g`` the correction gain. Choice: the correction is the one of the
+   estimator's pack *now*, not re-simulated at the new pressure: the spline-friction state
+   changes slowly compared with the control period, and it keeps the law O(1) per tick;
+2. overshoot guard: the pressure never exceeds ``inverse((1 + margin) * guard_torque)`` (the
+   plain steady-state inverse, no correction), since overshoot is the worse failure
+   (thesis §1.2);
+3. a request of 0 N m (or below, or non-finite) commands 0 Pa.
 
 Limits and rate limits on the pressure are the caller's (node parameters).
 """
@@ -27,11 +26,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from clutch_ros.model.errors import ModelError
+from clutch_ros.model.inverse import capacity_scalar, solve_pressure
 
 __all__ = ["ControlCommand", "command_pressure"]
-
-_MIN_SLOPE_PRESSURE = 1e4  # [Pa] below this the slope dT/dp is taken at this pressure
 
 
 @dataclass(frozen=True)
@@ -41,8 +38,8 @@ class ControlCommand:
     Attributes:
         pressure: commanded actuating pressure before node limits [Pa]
         steady_state_pressure: the steady-state inverse of the target [Pa]
-        correction: spline-friction correction added [Pa]
-        predicted_torque: torque the model predicts at ``pressure`` with the current
+        correction: spline-friction correction applied [Pa]
+        predicted_torque: steady-state torque of the model at ``pressure`` less the current
             spline-friction loss [N m]
         reasons: why the command differs from the plain inverse (guard, unreachable ...)
 
@@ -55,52 +52,28 @@ class ControlCommand:
     reasons: tuple[str, ...]
 
 
-def _inverse(params, torque, temperature, slip, reasons):
-    from clutch_ros.model import pressure_for_torque
-
-    try:
-        return float(pressure_for_torque(params, torque, temperature, slip))
-    except ModelError as err:
-        reasons.append(f"unreachable torque: {err}")
-        return float(params.friction.pressure_ref) * 10.0
-
-
-def _reference(params, pressure, temperature, slip) -> float:
-    from clutch_ros.model import reference_torque
-
-    return abs(float(reference_torque(params, pressure, temperature, slip)))
-
-
 def command_pressure(params, target_torque: float, lamella_temperature: float,
-                     slip_speed: float, *, current_pressure: float = 0.0,
-                     modelled_torque: float = math.nan, reference_torque: float = math.nan,
+                     slip_speed: float, *, spline_correction: float = 0.0,
                      correction_gain: float = 1.0, overshoot_margin: float = 0.05,
                      guard_torque: float | None = None) -> ControlCommand:
     """Evaluate the control law (module docstring) for one tick; never returns NaN."""
-    reasons: list[str] = []
     guard_torque = target_torque if guard_torque is None else guard_torque
-    values = (target_torque, lamella_temperature, slip_speed)
-    if not all(math.isfinite(v) for v in values) or target_torque <= 0.0:
-        if target_torque > 0.0:
-            reasons.append("non-finite input")
-        return ControlCommand(0.0, 0.0, 0.0, 0.0, tuple(reasons))
-    p_ss = _inverse(params, target_torque, lamella_temperature, slip_speed, reasons)
-    correction = 0.0
-    loss = 0.0
-    if (correction_gain > 0.0 and math.isfinite(modelled_torque)
-            and math.isfinite(reference_torque) and math.isfinite(current_pressure)):
-        p0 = max(current_pressure, _MIN_SLOPE_PRESSURE)
-        dp = 0.01 * p0
-        slope = (_reference(params, p0 + dp, lamella_temperature, slip_speed)
-                 - _reference(params, p0 - dp, lamella_temperature, slip_speed)) / (2 * dp)
-        loss = abs(reference_torque) - abs(modelled_torque)
-        if slope > 0.0 and current_pressure > 0.0:
-            correction = correction_gain * loss / slope
-    pressure = max(p_ss + correction, 0.0)
-    guard = _inverse(params, (1.0 + overshoot_margin) * guard_torque, lamella_temperature,
-                     slip_speed, [])
+    values = (target_torque, lamella_temperature, slip_speed, guard_torque)
+    if not all(math.isfinite(v) for v in values):
+        return ControlCommand(0.0, 0.0, 0.0, 0.0, ("non-finite input",))
+    if target_torque <= 0.0:
+        return ControlCommand(0.0, 0.0, 0.0, 0.0, ())
+    correction = correction_gain * spline_correction if math.isfinite(spline_correction) \
+        else 0.0
+    sol = solve_pressure(params, target_torque, lamella_temperature, slip_speed, correction)
+    reasons = [sol.reason] if sol.reason else []
+    pressure = sol.pressure
+    guard = solve_pressure(params, (1.0 + overshoot_margin) * guard_torque,
+                           lamella_temperature, slip_speed).steady_state_pressure
     if pressure > guard:
         pressure = guard
         reasons.append("overshoot guard")
-    predicted = _reference(params, pressure, lamella_temperature, slip_speed) - loss
-    return ControlCommand(pressure, p_ss, correction, max(predicted, 0.0), tuple(reasons))
+    applied = pressure - sol.steady_state_pressure
+    predicted = capacity_scalar(params, pressure - correction, lamella_temperature, slip_speed)
+    return ControlCommand(pressure, sol.steady_state_pressure, applied, predicted,
+                          tuple(reasons))

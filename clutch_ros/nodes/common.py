@@ -19,6 +19,7 @@ __all__ = [
     "Diagnostics",
     "declare_params",
     "help_requested",
+    "make_executor",
     "format_help",
     "reliable_qos",
     "run_node",
@@ -115,6 +116,44 @@ def declare_params(node, specs: Iterable[ParamSpec], overrides: dict | None = No
     return values
 
 
+#: Executor the nodes spin by default. SingleThreadedExecutor: measured by
+#: ``python -m clutch_ros.nodes.bench`` against rclpy.experimental.EventsExecutor (figures in
+#: the README); ``--executor events`` before ``--ros-args`` selects the other one.
+DEFAULT_EXECUTOR = "single"
+
+
+def make_executor(kind: str = DEFAULT_EXECUTOR):
+    """Return a new ``single`` (SingleThreadedExecutor) or ``events`` (EventsExecutor)."""
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor()
+    if kind == "single":
+        from rclpy.executors import SingleThreadedExecutor
+
+        return SingleThreadedExecutor()
+    raise ValueError(f"unknown executor {kind!r} (single or events)")
+
+
+def _executor_option(argv: list[str]) -> tuple[str, list[str]]:
+    """Take ``--executor KIND`` (before ``--ros-args``) out of ``argv``."""
+    kind = DEFAULT_EXECUTOR
+    out: list[str] = []
+    it = iter(argv)
+    for arg in it:
+        if arg == "--ros-args":
+            out.append(arg)
+            out.extend(it)
+            break
+        if arg == "--executor":
+            kind = next(it, DEFAULT_EXECUTOR)
+        elif arg.startswith("--executor="):
+            kind = arg.split("=", 1)[1]
+        else:
+            out.append(arg)
+    return kind, out
+
+
 def help_requested(argv: Sequence[str]) -> bool:
     """Return True when ``-h``/``--help`` appears before any ``--ros-args``."""
     for arg in argv:
@@ -127,8 +166,9 @@ def help_requested(argv: Sequence[str]) -> bool:
 
 def format_help(name: str, doc: str, specs: Iterable[ParamSpec]) -> str:
     """Return the ``--help`` text of node ``name``."""
-    lines = [f"usage: ros2 run clutch_ros {name} [--ros-args --params-file FILE -p NAME:=VALUE"
-             " -r __ns:=/NS ...]", "", doc.strip(), "", "parameters:"]
+    lines = [f"usage: ros2 run clutch_ros {name} [--executor single|events] [--ros-args "
+             "--params-file FILE -p NAME:=VALUE -r __ns:=/NS ...]", "", doc.strip(), "",
+             "parameters:"]
     lines += [f"  {spec.describe()}" for spec in specs]
     return "\n".join(lines) + "\n"
 
@@ -181,8 +221,9 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     if help_requested(argv):
         sys.stdout.write(format_help(name, doc, specs))
         return 0
+    executor_kind, argv = _executor_option(argv)
     import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
 
     rclpy.init(args=[sys.argv[0], *argv])
     # SIGTERM (from a supervisor such as `clutch demo`) shuts down like Ctrl-C.
@@ -190,7 +231,7 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     node = None
     try:
         node = factory()
-        executor = SingleThreadedExecutor()
+        executor = make_executor(executor_kind)
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):

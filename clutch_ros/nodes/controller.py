@@ -4,13 +4,19 @@ At ``controller.rate`` it turns the latest torque request into an actuating-pres
 inverting the model (:func:`clutch_ros.model.pressure_for_torque`, steady state with the
 friction coefficient's pressure dependence at the current lamella temperature and filtered
 slip speed), adds the dynamic spline-friction correction taken from the latest estimate
-(the pressure equivalent of ``reference_torque - modelled_torque``: what the pack currently
-loses to spline friction), then applies, in this order:
+(``spline_correction``: the pressure equivalent of what the estimator's pack currently loses
+to spline friction; see :mod:`clutch_ros.model.control`), then applies, in this order:
 
 1. the overshoot guard: never more than the steady-state inverse of
    ``(1 + controller.overshoot_margin) * request``;
 2. the pressure limits ``controller.min_pressure`` .. ``controller.max_pressure``;
 3. the rate limit ``controller.pressure_rate_limit``.
+
+The torque target is the request, ramped at ``controller.torque_ramp_rate`` and advanced by
+``controller.lead_time`` x the request's slope: without that lead, the pack's viscous lag
+(c/k), the pump lag and the transport delay make the torque trail a ramp, which shows as
+overshoot at the low end of falling ramps (measured in the offline closed loop: 69 % of the
+settled time within ±10 % without lead, 100 % with 0.2 s on the rig_truth plant).
 
 Fail-safe: a stale torque request, stale rig data or a stale/missing estimate (for instance
 the estimator died) commands 0 Pa with ``reason`` saying which; commands resume by themselves
@@ -22,6 +28,7 @@ requests are treated as 0 N m and reported).
 from __future__ import annotations
 
 import math
+from collections import deque
 
 from rclpy.node import Node
 
@@ -37,6 +44,7 @@ from clutch_ros.nodes.model_params import declare_model_params
 from clutch_ros.nodes.presets import DEFAULT_ESTIMATOR_PRESET
 
 NAME = "controller"
+_SLOPE_WINDOW = 0.1  # [s] window of the request slope used by the lead
 PARAMS = [
     ParamSpec("controller.rate", 100.0, "command publishing rate", "Hz", 1.0, 2000.0),
     ParamSpec("controller.min_pressure", 0.0, "lowest commanded pressure", "Pa", 0.0, 1e8),
@@ -46,9 +54,15 @@ PARAMS = [
               "Pa/s", 1.0, 1e10),
     ParamSpec("controller.torque_ramp_rate", 4000.0, "maximum slew of the torque target "
               "(request ramping)", "N m/s", 1.0, 1e7),
+    ParamSpec("controller.lead_time", 0.2, "feed-forward lead on the request slope: the "
+              "torque target is advanced by lead_time x dT/dt to cancel the pack's viscous lag "
+              "(c/k = 0.1 s in flexiforce_8), the pump lag (~0.05 s) and transport delays",
+              "s", 0.0, 2.0),
+    ParamSpec("controller.lead_max_rate", 1000.0, "bound of the request slope used by the "
+              "lead (steps are not differentiated into spikes)", "N m/s", 0.0, 1e6),
     ParamSpec("controller.overshoot_margin", 0.05, "overshoot guard: pressure never above the "
               "steady-state inverse of (1 + margin) x request", "1", 0.0, 1.0),
-    ParamSpec("controller.spline_correction_gain", 0.5, "weight of the dynamic spline-friction "
+    ParamSpec("controller.spline_correction_gain", 1.0, "weight of the dynamic spline-friction "
               "correction (0 = steady-state inverse only)", "1", 0.0, 2.0),
     ParamSpec("controller.request_timeout", 0.5, "a torque request older than this is stale "
               "-> 0 Pa", "s", 0.001, 3600.0),
@@ -74,6 +88,7 @@ class ControllerNode(Node):
         self._rig = self._rig_at = None
         self._estimate = self._estimate_at = None
         self._target = 0.0  # ramped torque target [N m]
+        self._history: deque[tuple[float, float]] = deque()  # (time [s], request [N m])
         self._pressure = 0.0  # last commanded pressure [Pa]
         self._counts = {"commands": 0, "limited": 0, "failsafe": 0, "bad_requests": 0}
         self._last_reason = ""
@@ -99,7 +114,21 @@ class ControllerNode(Node):
             self.get_logger().warning(f"torque request {torque!r} N m is not a finite "
                                       "value >= 0; using 0 N m", throttle_duration_sec=5.0)
             torque = 0.0
-        self._request, self._request_at = torque, self._now()
+        now = self._now()
+        self._request, self._request_at = torque, now
+        self._history.append((now, torque))
+        while len(self._history) > 2 and now - self._history[1][0] >= _SLOPE_WINDOW:
+            self._history.popleft()
+
+    def _request_slope(self) -> float:
+        """Slope of the request over the last ~0.1 s [N m/s], bounded by lead_max_rate."""
+        if len(self._history) < 2:
+            return 0.0
+        (t0, r0), (t1, r1) = self._history[0], self._history[-1]
+        if t1 - t0 < 0.5 * _SLOPE_WINDOW:
+            return 0.0
+        bound = self._cfg["controller.lead_max_rate"]
+        return max(-bound, min(bound, (r1 - r0) / (t1 - t0)))
 
     def _on_rig(self, msg) -> None:
         self._rig, self._rig_at = msg, self._now()
@@ -137,10 +166,11 @@ class ControllerNode(Node):
             step = cfg["controller.torque_ramp_rate"] * self._period
             self._target += max(-step, min(step, request - self._target))
             est = self._estimate
+            lead = cfg["controller.lead_time"] * self._request_slope()
             cmd = command_pressure(
-                self._params, self._target, est.lamella_temperature, est.slip_speed_filtered,
-                current_pressure=est.actuating_pressure,
-                modelled_torque=est.modelled_torque, reference_torque=est.reference_torque,
+                self._params, max(self._target + lead, 0.0), est.lamella_temperature,
+                est.slip_speed_filtered,
+                spline_correction=est.spline_correction,
                 correction_gain=cfg["controller.spline_correction_gain"],
                 overshoot_margin=cfg["controller.overshoot_margin"],
                 guard_torque=request)

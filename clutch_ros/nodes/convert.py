@@ -22,6 +22,7 @@ def estimate_to_msg(est, header, msg_type):
     msg.rear_pressure = float(est.rear_pressure)
     msg.pressure_difference = float(est.pressure_difference)
     msg.slip_speed_filtered = float(est.slip_speed_filtered)
+    msg.spline_correction = float(est.spline_correction)
     msg.actuating_pressure = float(getattr(est, "actuating_pressure", math.nan))
     msg.lamella_temperature = float(getattr(est, "lamella_temperature", math.nan))
     msg.spline_law = str(est.spline_law)
