@@ -21,14 +21,14 @@ __all__ = ["main", "build_parser"]
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the argument parser of ``clutch`` with all subcommands."""
-    from clutch_ros.cli import demo, import_cmd, replay
+    from clutch_ros.cli import closed_loop_cmd, demo, import_cmd, replay
 
     parser = argparse.ArgumentParser(
         prog="clutch",
         description="Wet lamella clutch torque estimation: import rig data, replay bags "
                     "through the model, run the simulated rig end to end.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in (import_cmd, replay, demo):
+    for module in (import_cmd, replay, demo, closed_loop_cmd):
         module.add_parser(sub)
     return parser
 

@@ -52,10 +52,10 @@ def _say(text: str, end: str = "\n") -> None:
 
 def run(args) -> int:
     """Run the demo; return 0 (summary printed) or raise ClutchError."""
-    from clutch_ros.cli.demo_profile import demo_profile
     from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
     from clutch_ros.params_file import load_params
     from clutch_ros.presets import preset_path
+    from clutch_ros.rig.request_profile import demo_profile
 
     if not 1.0 <= args.rate <= 2000.0:
         raise ClutchError(f"--rate must be within 1..2000 Hz, got {args.rate}")

@@ -1,7 +1,7 @@
 """The demo's test-engineer stand-in: publishes torque requests and sets the rig motor speed.
 
 ``DemoDriver`` publishes ``torque_request`` at ``rate`` Hz following a profile
-(:mod:`clutch_ros.cli.demo_profile`), sets the simulated rig's slip speed (parameter
+(:mod:`clutch_ros.rig.request_profile`), sets the simulated rig's slip speed (parameter
 ``rig.slip_speed`` of the ``rig_sim`` node, as a test engineer sets the rig motor) when the
 profile's segment changes, and keeps the latest rig state, estimate and command for the
 progress line.
@@ -14,8 +14,8 @@ import math
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from clutch_ros.cli.demo_profile import request_at, slip_at
 from clutch_ros.nodes.common import reliable_qos, sensor_qos
+from clutch_ros.rig.request_profile import request_at, slip_at
 
 __all__ = ["DemoDriver"]
 

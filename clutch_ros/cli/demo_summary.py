@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from clutch_ros.cli.demo_profile import request_at, settled_mask
+from clutch_ros.rig.request_profile import request_at, settled_mask
 
 __all__ = ["DemoSeries", "closed_loop_summary", "load_series"]
 

@@ -1,34 +1,24 @@
 """The ``controller`` node: TorqueRequest (+ RigState, ClutchEstimate) in, PressureCommand out.
 
-At ``controller.rate`` it turns the latest torque request into an actuating-pressure command by
-inverting the model (:func:`clutch_ros.model.pressure_for_torque`, steady state with the
-friction coefficient's pressure dependence at the current lamella temperature and filtered
-slip speed), adds the dynamic spline-friction correction taken from the latest estimate
-(``spline_correction``: the pressure equivalent of what the estimator's pack currently loses
-to spline friction; see :mod:`clutch_ros.model.control`), then applies, in this order:
+At ``controller.rate`` it runs :class:`clutch_ros.model.control.TorqueController` (the same
+class the offline closed-loop tests run): the torque target is the request ramped at
+``controller.torque_ramp_rate`` and advanced by ``controller.lead_time`` x the request's slope
+(without that lead, the pack's viscous lag c/k, the pump lag and the transport delay make the
+torque trail a ramp, which shows as overshoot at the low end of falling ramps: 69 % of the
+settled time within ±10 % without lead, 100 % with 0.2 s in the offline closed loop on the
+rig_truth plant). The target is inverted with the model (steady state with the friction
+coefficient's pressure dependence at the estimate's lamella temperature and filtered slip)
+plus the estimate's dynamic ``spline_correction``; then, in this order, the overshoot guard
+(never above the steady-state inverse of ``(1 + controller.overshoot_margin) x request``),
+the pressure limits and the rise/fall rate limits (rises below the pump's kick threshold).
 
-1. the overshoot guard: never more than the steady-state inverse of
-   ``(1 + controller.overshoot_margin) * request``;
-2. the pressure limits ``controller.min_pressure`` .. ``controller.max_pressure``;
-3. the rate limit ``controller.pressure_rate_limit``.
-
-The torque target is the request, ramped at ``controller.torque_ramp_rate`` and advanced by
-``controller.lead_time`` x the request's slope: without that lead, the pack's viscous lag
-(c/k), the pump lag and the transport delay make the torque trail a ramp, which shows as
-overshoot at the low end of falling ramps (measured in the offline closed loop: 69 % of the
-settled time within ±10 % without lead, 100 % with 0.2 s on the rig_truth plant).
-
-Fail-safe: a stale torque request, stale rig data or a stale/missing estimate (for instance
-the estimator died) commands 0 Pa with ``reason`` saying which; commands resume by themselves
-when fresh data returns. Requests are ramped at ``controller.torque_ramp_rate``. Every
-published pressure is within the configured limits, whatever arrives (NaN or negative
-requests are treated as 0 N m and reported).
+Fail-safe: a stale torque request, stale rig data or a stale/missing estimate (the estimator
+died, say) commands 0 Pa at once with ``reason`` saying which; commands resume by themselves
+when fresh data returns. Every published pressure is within the configured limits, whatever
+arrives (NaN or negative requests are treated as 0 N m and reported).
 """
 
 from __future__ import annotations
-
-import math
-from collections import deque
 
 from rclpy.node import Node
 
@@ -44,20 +34,19 @@ from clutch_ros.nodes.model_params import declare_model_params
 from clutch_ros.nodes.presets import DEFAULT_ESTIMATOR_PRESET
 
 NAME = "controller"
-_SLOPE_WINDOW = 0.1  # [s] window of the request slope used by the lead
 PARAMS = [
     ParamSpec("controller.rate", 100.0, "command publishing rate", "Hz", 1.0, 2000.0),
     ParamSpec("controller.min_pressure", 0.0, "lowest commanded pressure", "Pa", 0.0, 1e8),
     ParamSpec("controller.max_pressure", 40e5, "highest commanded pressure", "Pa", 0.0, 1e8),
-    ParamSpec("controller.pressure_rate_limit", 90e5, "maximum pressure slew; below the pump's "
-              "kick threshold (about 100 bar/s, thesis 5.1.1) so steps do not overshoot",
-              "Pa/s", 1.0, 1e10),
+    ParamSpec("controller.rise_rate_limit", 90e5, "maximum pressure rise; below the pump's "
+              "kick threshold (about 100 bar/s, thesis 5.1.1)", "Pa/s", 1.0, 1e10),
+    ParamSpec("controller.fall_rate_limit", 400e5, "maximum pressure fall (fail-safe zeroing "
+              "bypasses it)", "Pa/s", 1.0, 1e10),
     ParamSpec("controller.torque_ramp_rate", 4000.0, "maximum slew of the torque target "
               "(request ramping)", "N m/s", 1.0, 1e7),
-    ParamSpec("controller.lead_time", 0.2, "feed-forward lead on the request slope: the "
-              "torque target is advanced by lead_time x dT/dt to cancel the pack's viscous lag "
-              "(c/k = 0.1 s in flexiforce_8), the pump lag (~0.05 s) and transport delays",
-              "s", 0.0, 2.0),
+    ParamSpec("controller.lead_time", 0.2, "the target is advanced by lead_time x the request "
+              "slope: pack lag c/k (0.1 s), pump lag (~0.05 s) and transport delay", "s",
+              0.0, 2.0),
     ParamSpec("controller.lead_max_rate", 1000.0, "bound of the request slope used by the "
               "lead (steps are not differentiated into spikes)", "N m/s", 0.0, 1e6),
     ParamSpec("controller.overshoot_margin", 0.05, "overshoot guard: pressure never above the "
@@ -80,16 +69,21 @@ class ControllerNode(Node):
         super().__init__(NAME)
         from clutch_msgs.msg import ClutchEstimate, PressureCommand, RigState, TorqueRequest
 
-        self._cfg = declare_params(self, PARAMS)
-        self._params = declare_model_params(self, DEFAULT_ESTIMATOR_PRESET)
-        if self._cfg["controller.min_pressure"] > self._cfg["controller.max_pressure"]:
-            raise ValueError("controller.min_pressure exceeds controller.max_pressure")
-        self._request = self._request_at = None
-        self._rig = self._rig_at = None
-        self._estimate = self._estimate_at = None
-        self._target = 0.0  # ramped torque target [N m]
-        self._history: deque[tuple[float, float]] = deque()  # (time [s], request [N m])
-        self._pressure = 0.0  # last commanded pressure [Pa]
+        from clutch_ros.model.control import ControllerSettings, TorqueController
+
+        cfg = self._cfg = declare_params(self, PARAMS)
+        params = declare_model_params(self, DEFAULT_ESTIMATOR_PRESET)
+        self._ctl = TorqueController(params, ControllerSettings(
+            period=1.0 / cfg["controller.rate"], min_pressure=cfg["controller.min_pressure"],
+            max_pressure=cfg["controller.max_pressure"],
+            rise_rate_limit=cfg["controller.rise_rate_limit"],
+            fall_rate_limit=cfg["controller.fall_rate_limit"],
+            torque_ramp_rate=cfg["controller.torque_ramp_rate"],
+            lead_time=cfg["controller.lead_time"], lead_max_rate=cfg["controller.lead_max_rate"],
+            overshoot_margin=cfg["controller.overshoot_margin"],
+            correction_gain=cfg["controller.spline_correction_gain"]))
+        self._seen = {"torque request": None, "rig data": None, "estimate": None}
+        self._estimate = None
         self._counts = {"commands": 0, "limited": 0, "failsafe": 0, "bad_requests": 0}
         self._last_reason = ""
         self._pub = self.create_publisher(PressureCommand, "pressure_command", reliable_qos())
@@ -100,48 +94,31 @@ class ControllerNode(Node):
         self.create_subscription(RigState, "rig_state", self._on_rig, sensor_qos())
         self.create_subscription(ClutchEstimate, "clutch_estimate", self._on_estimate,
                                  reliable_qos(depth=2))
-        self._period = 1.0 / self._cfg["controller.rate"]
-        self.create_timer(self._period, self._tick)
+        self.create_timer(self._ctl.settings.period, self._tick)
         self._diag = Diagnostics(self, self._diagnose)
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _on_request(self, msg) -> None:
-        torque = msg.torque
-        if not math.isfinite(torque) or torque < 0.0:
-            self._counts["bad_requests"] += 1
-            self.get_logger().warning(f"torque request {torque!r} N m is not a finite "
-                                      "value >= 0; using 0 N m", throttle_duration_sec=5.0)
-            torque = 0.0
         now = self._now()
-        self._request, self._request_at = torque, now
-        self._history.append((now, torque))
-        while len(self._history) > 2 and now - self._history[1][0] >= _SLOPE_WINDOW:
-            self._history.popleft()
-
-    def _request_slope(self) -> float:
-        """Slope of the request over the last ~0.1 s [N m/s], bounded by lead_max_rate."""
-        if len(self._history) < 2:
-            return 0.0
-        (t0, r0), (t1, r1) = self._history[0], self._history[-1]
-        if t1 - t0 < 0.5 * _SLOPE_WINDOW:
-            return 0.0
-        bound = self._cfg["controller.lead_max_rate"]
-        return max(-bound, min(bound, (r1 - r0) / (t1 - t0)))
+        self._seen["torque request"] = now
+        warning = self._ctl.set_request(now, msg.torque)
+        if warning:
+            self._counts["bad_requests"] += 1
+            self.get_logger().warning(warning, throttle_duration_sec=5.0)
 
     def _on_rig(self, msg) -> None:
-        self._rig, self._rig_at = msg, self._now()
+        self._seen["rig data"] = self._now()
 
     def _on_estimate(self, msg) -> None:
-        self._estimate, self._estimate_at = msg, self._now()
+        self._estimate, self._seen["estimate"] = msg, self._now()
 
     def _stale_reason(self, now: float) -> str:
-        cfg = self._cfg
-        for what, at, timeout in (
-                ("torque request", self._request_at, cfg["controller.request_timeout"]),
-                ("rig data", self._rig_at, cfg["controller.rig_timeout"]),
-                ("estimate", self._estimate_at, cfg["controller.estimate_timeout"])):
+        timeouts = {"torque request": "controller.request_timeout",
+                    "rig data": "controller.rig_timeout", "estimate": "controller.estimate_timeout"}
+        for what, key in timeouts.items():
+            at, timeout = self._seen[what], self._cfg[key]
             if at is None:
                 return f"no {what} received"
             if now - at > timeout:
@@ -151,56 +128,27 @@ class ControllerNode(Node):
     def _tick(self) -> None:
         from clutch_msgs.msg import PressureCommand
 
-        from clutch_ros.model.control import command_pressure
-
-        now = self._now()
-        cfg = self._cfg
-        stale = self._stale_reason(now)
+        stale = self._stale_reason(self._now())
         if stale:
-            self._target = 0.0
-            request, ideal, predicted = (self._request or 0.0), 0.0, 0.0
-            reasons = [f"fail-safe: {stale}"]
+            out = self._ctl.fail_safe(stale)
             self._counts["failsafe"] += 1
         else:
-            request = self._request
-            step = cfg["controller.torque_ramp_rate"] * self._period
-            self._target += max(-step, min(step, request - self._target))
             est = self._estimate
-            lead = cfg["controller.lead_time"] * self._request_slope()
-            cmd = command_pressure(
-                self._params, max(self._target + lead, 0.0), est.lamella_temperature,
-                est.slip_speed_filtered,
-                spline_correction=est.spline_correction,
-                correction_gain=cfg["controller.spline_correction_gain"],
-                overshoot_margin=cfg["controller.overshoot_margin"],
-                guard_torque=request)
-            ideal, predicted, reasons = cmd.pressure, cmd.predicted_torque, list(cmd.reasons)
-            if self._target != request:
-                reasons.append("request ramping")
-        pressure = min(max(ideal, cfg["controller.min_pressure"]),
-                       cfg["controller.max_pressure"])
-        if pressure != ideal:
-            reasons.append("pressure limit")
-        max_step = cfg["controller.pressure_rate_limit"] * self._period
-        limited_pressure = self._pressure + max(-max_step, min(max_step, pressure
-                                                                - self._pressure))
-        if limited_pressure != pressure:
-            reasons.append("rate limit")
-        self._pressure = limited_pressure
-        out = PressureCommand()
-        out.header.stamp = self.get_clock().now().to_msg()
-        out.pressure = float(limited_pressure)
-        out.requested_torque = float(request)
-        out.predicted_torque = float(predicted) if math.isfinite(predicted) else 0.0
-        out.limited = bool(reasons)
-        out.reason = "; ".join(reasons)
+            out = self._ctl.update(est.lamella_temperature, est.slip_speed_filtered,
+                                   est.spline_correction)
+        msg = PressureCommand()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.pressure = float(out.pressure)
+        msg.requested_torque = float(out.requested_torque)
+        msg.predicted_torque = float(out.predicted_torque)
+        msg.limited, msg.reason = out.limited, out.reason
         self._counts["commands"] += 1
-        self._counts["limited"] += bool(reasons)
+        self._counts["limited"] += out.limited
         self._last_reason = out.reason
-        self._pub.publish(out)
+        self._pub.publish(msg)
 
     def _diagnose(self):
-        values = dict(self._counts, pressure_pa=self._pressure, target_nm=self._target,
+        values = dict(self._counts, pressure_pa=self._ctl.pressure, target_nm=self._ctl.target,
                       last_reason=self._last_reason)
         stale = self._stale_reason(self._now())
         if stale:

@@ -1,0 +1,64 @@
+"""``clutch closed-loop``: the controller on the simulated rig, offline and deterministic.
+
+Runs the truth plant (``--rig-params``), the estimator and the controller
+(:mod:`clutch_ros.rig.closed_loop`) over the demo's torque-request profile without ROS or a
+bus, for the default controller settings and, for comparison, without the request lead and
+without the spline-friction correction. Prints the fraction of settled time within ±10 % of
+the request, the worst overshoot and the longest stretch above 1.1.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub) -> None:
+    """Register ``clutch closed-loop``."""
+    p = sub.add_parser("closed-loop", help="offline closed loop of the controller on the "
+                       "simulated rig", description=__doc__.split("\n\n")[0])
+    p.add_argument("--params", default="flexiforce_8",
+                   help="estimator/controller parameter preset or YAML (default flexiforce_8)")
+    p.add_argument("--rig-params", default="rig_truth",
+                   help="truth-plant preset or YAML (default rig_truth)")
+    p.add_argument("--full", action="store_true", help="the full demo profile (default quick)")
+    p.add_argument("--json", action="store_true", help="print the figures as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    """Run the three variants and print their figures."""
+    from dataclasses import replace
+
+    from clutch_ros.model import reference_torque
+    from clutch_ros.model.control import ControllerSettings
+    from clutch_ros.params_file import load_params
+    from clutch_ros.presets import preset_path
+    from clutch_ros.rig import RigPlant
+    from clutch_ros.rig.closed_loop import run_closed_loop
+    from clutch_ros.rig.request_profile import demo_profile
+
+    params = load_params(preset_path(args.params))
+    rig_file = preset_path(args.rig_params)
+    rated = float(reference_torque(params, 40e5, 35.0, 10 * 2 * math.pi / 60))
+    profile = demo_profile(rated, quick=not args.full)
+    base = ControllerSettings()
+    rows = {}
+    for name, settings in (("defaults", base), ("no lead", replace(base, lead_time=0.0)),
+                           ("no spline correction", replace(base, correction_gain=0.0))):
+        r = run_closed_loop(params, RigPlant.from_file(rig_file, seed=0), profile, settings)
+        rows[name] = {"within_10pct": r.within_10pct, "worst_overshoot": r.worst_overshoot,
+                      "longest_overshoot_s": r.longest_overshoot_s}
+    if args.json:
+        from clutch_ros.cli import emit_json
+
+        emit_json(rows)
+        return 0
+    sys.stdout.write(f"{'settings':24s} {'within ±10 %':>12s} {'worst over':>10s} "
+                     f"{'longest >1.1':>12s}\n")
+    for name, r in rows.items():
+        sys.stdout.write(f"{name:24s} {100 * r['within_10pct']:11.1f}% "
+                         f"{r['worst_overshoot']:10.3f} {r['longest_overshoot_s']:11.2f}s\n")
+    return 0
