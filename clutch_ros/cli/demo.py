@@ -79,7 +79,10 @@ def run(args) -> int:
     specs = {
         "rig_sim": ros_param_args({**can, "rig.params_file": str(rig_file),
                                    "rig.slip_speed": profile[0].slip_speed}),
-        "can_bridge": ros_param_args({**can, "bridge.rate": args.rate}),
+        # The pump request rises no faster than 90 bar/s however DDS bunches the commands:
+        # faster rises trigger the pump's pressure kick (thesis 5.1.1).
+        "can_bridge": ros_param_args({**can, "bridge.rate": args.rate,
+                                      "pump.rate_limit": 90e5}),
         "estimator": ["--params-file", str(est_file)],
         "controller": ["--params-file", str(est_file)],
     }
