@@ -36,7 +36,8 @@ def workspace(tmp_path_factory):
            "src/clutch_ros/msg_defs", "--cmake-args", f"-DPython3_EXECUTABLE={sys.executable}",
            "-DBUILD_TESTING=OFF"]
     done = subprocess.run(cmd, cwd=ws, env=env, capture_output=True, text=True, timeout=600)
-    assert done.returncode == 0, f"colcon build failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
+    assert done.returncode == 0, \
+        f"colcon build failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
     return ws
 
 
@@ -68,7 +69,8 @@ def test_node_executable_answers_help(workspace, node):
 def test_installed_package_is_the_one_imported(workspace):
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH",)}
     env["AMENT_PREFIX_PATH"] = str(VENV)
-    probe = "import clutch_ros, clutch_msgs; print(clutch_ros.__file__); print(clutch_msgs.__file__)"
+    probe = ("import clutch_ros, clutch_msgs; print(clutch_ros.__file__); "
+             "print(clutch_msgs.__file__)")
     script = f". '{workspace}/install/setup.sh' && cd / && '{sys.executable}' -c '{probe}'"
     done = subprocess.run(["bash", "-c", script], env=env, capture_output=True, text=True,
                           timeout=120)

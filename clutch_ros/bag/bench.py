@@ -9,11 +9,13 @@
 2. Measures, on that bag, in the same run:
    - bare rosbags: ``Reader.messages()`` + ``Typestore.deserialize_cdr`` per message;
    - :meth:`~clutch_ros.bag.reader.BagReader.messages` (the checked reader);
-   - :func:`~clutch_ros.bag.reader.read_rig_states` (numpy columns).
-3. Prints samples/s for each and deletes the bag (``--keep DIR`` keeps it there).
-
-:func:`run` returns a :class:`BenchResult` so the offline replay benchmark can add its own
-figure next to these, on the same generated bag (``generate_bag``).
+   - :func:`~clutch_ros.bag.reader.read_rig_states` (numpy columns);
+   - offline replay, as ``clutch replay`` runs it (:func:`clutch_ros.bag.replay.replay_bag`):
+     ``read_rig_states`` + :func:`clutch_ros.model.estimate_batch` with the ``flexiforce_8``
+     preset, split into its read and estimate parts.
+3. Prints samples/s for each, the ratio to real time and to the bare rosbags read, checks
+   the replay targets (>= 100x real time, >= 40 % of the bare read), and deletes the bag
+   (``--keep DIR`` keeps it there). ``--no-replay`` skips the replay.
 """
 
 from __future__ import annotations
@@ -52,6 +54,29 @@ class BenchResult:
     bare_rosbags_per_s: float
     bag_reader_per_s: float
     read_rig_states_per_s: float
+    replay_per_s: float | None = None
+    replay_read_s: float | None = None
+    replay_estimate_s: float | None = None
+    replay_preset: str | None = None
+
+    @property
+    def replay_realtime(self) -> float | None:
+        """Offline replay speed as a multiple of real time."""
+        if self.replay_per_s is None:
+            return None
+        return self.replay_per_s / (self.samples / self.seconds_of_data)
+
+    @property
+    def replay_vs_bare(self) -> float | None:
+        """Offline replay throughput as a fraction of the bare rosbags read+deserialize."""
+        if self.replay_per_s is None:
+            return None
+        return self.replay_per_s / self.bare_rosbags_per_s
+
+
+#: Offline replay targets of issue 6: x real time, fraction of the bare rosbags read.
+TARGET_REALTIME = 100.0
+TARGET_VS_BARE = 0.40
 
 
 def _signals(t: np.ndarray) -> dict[str, np.ndarray]:
@@ -133,8 +158,10 @@ def run(
     rate_hz: float = 1000.0,
     storage: str = "mcap",
     keep: str | Path | None = None,
+    replay: bool = True,
+    preset: str = "flexiforce_8",
 ) -> BenchResult:
-    """Generate the bag, measure the three read paths, delete the bag (unless ``keep``)."""
+    """Generate the bag, measure the read paths and the replay, delete it (unless ``keep``)."""
     with tempfile.TemporaryDirectory(prefix="clutch-bench-") as tmp:
         path = (Path(keep) if keep else Path(tmp)) / f"bench_{int(seconds)}s_{storage}"
         t0 = time.perf_counter()
@@ -162,7 +189,24 @@ def run(
         arrays = read_rig_states(path, store=store)
         fast = _rate(len(arrays), time.perf_counter() - t0)
         del arrays
-    return BenchResult(n, n / rate_hz, storage, nbytes, gen, bare, checked, fast)
+        res = BenchResult(n, n / rate_hz, storage, nbytes, gen, bare, checked, fast)
+        if replay:
+            from clutch_ros.bag.replay import replay_bag
+            from clutch_ros.params_file import load_params
+            from clutch_ros.presets import preset_path
+
+            params = load_params(preset_path(preset))
+            t0 = time.perf_counter()
+            result = replay_bag(path, params, store=store)
+            total = time.perf_counter() - t0
+            if result.summary["accepted"] != n:
+                raise RuntimeError(f"replay accepted {result.summary['accepted']} of {n}")
+            res.replay_per_s = _rate(n, total)
+            res.replay_read_s = result.summary["read_s"]
+            res.replay_estimate_s = result.summary["estimate_s"]
+            res.replay_preset = preset
+            del result
+    return res
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -177,10 +221,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
     parser.add_argument("--keep", metavar="DIR", help="write the bag into DIR and keep it")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    parser.add_argument("--no-replay", action="store_true", help="measure the reads only")
+    parser.add_argument("--preset", default="flexiforce_8", help="estimator preset of the replay")
     args = parser.parse_args(argv)
-    res = run(args.seconds, args.rate, args.storage, args.keep)
+    res = run(args.seconds, args.rate, args.storage, args.keep, not args.no_replay, args.preset)
     if args.json:
-        print(json.dumps(asdict(res)))
+        doc = asdict(res)
+        doc.update(replay_realtime=res.replay_realtime, replay_vs_bare=res.replay_vs_bare)
+        print(json.dumps(doc))
         return 0
     print(
         f"bag: {res.samples} RigState messages ({res.seconds_of_data:g} s at {args.rate:g} Hz),"
@@ -195,6 +243,27 @@ def main(argv: list[str] | None = None) -> int:
             f"{label:31s} {rate:12,.0f} samples/s  {rate / args.rate:8,.0f}x real time  "
             f"{rate / res.bare_rosbags_per_s:5.2f}x bare"
         )
+    if res.replay_per_s is None:
+        return 0
+    label = f"offline replay ({res.replay_preset})"
+    rate = res.replay_per_s
+    print(
+        f"{label:31s} {rate:12,.0f} samples/s  {res.replay_realtime:8,.0f}x real time  "
+        f"{res.replay_vs_bare:5.2f}x bare"
+    )
+    read_s, est_s = res.replay_read_s or 0.0, res.replay_estimate_s or 0.0
+    whole = max(read_s + est_s, 1e-12)
+    print(
+        f"  of which read_rig_states {read_s:.2f} s ({100 * read_s / whole:.0f} %), "
+        f"estimate_batch {est_s:.2f} s ({100 * est_s / whole:.0f} %; "
+        f"{_rate(res.samples, est_s):,.0f} samples/s)"
+    )
+    ok_rt = res.replay_realtime >= TARGET_REALTIME
+    ok_bare = res.replay_vs_bare >= TARGET_VS_BARE
+    print(
+        f"replay targets: >= {TARGET_REALTIME:g}x real time {'met' if ok_rt else 'NOT MET'}, "
+        f">= {100 * TARGET_VS_BARE:g} % of the bare read {'met' if ok_bare else 'NOT MET'}"
+    )
     return 0
 
 

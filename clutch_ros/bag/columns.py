@@ -44,6 +44,7 @@ class CorruptMessageError(ValueError):
 
     def __init__(self, index: int, cause: str):
         self.index = index
+        self.cause = cause
         super().__init__(f"message {index}: {cause}")
 
 

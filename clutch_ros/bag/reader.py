@@ -213,6 +213,14 @@ class BagReader:
             )
         return [c for c in conns if c.topic in wanted]
 
+    def check_types(self, topics: Iterable[str] | str | None = None) -> None:
+        """Raise ``UnknownTypeError`` unless every selected topic's type is known and equal.
+
+        (:meth:`messages` checks this itself unless ``raw``.)
+        """
+        for conn in self._select(topics):
+            self._check_type(conn)
+
     def _check_type(self, conn: Connection) -> None:
         typename = conn.msgtype
         if typename not in self.store.types:

@@ -155,7 +155,9 @@ def read_fast(
                 times.append(block.times)
                 done += len(block.times)
         except CorruptMessageError as err:
-            raise BagCorruptError(file, f"{topic}: message {done + err.index + 1}: {err}") from err
+            raise BagCorruptError(
+                file, f"{topic}: message {done + err.index + 1}: {err.cause}"
+            ) from err
         except Exception as err:  # noqa: BLE001 - FastMcapError, struct.error, zstd errors
             raise BagCorruptError(file, f"cannot read messages: {err}") from err
     if done != declared:
@@ -194,7 +196,7 @@ def read_via_rosbags(
                 part = decoder.decode(raws)
         except CorruptMessageError as err:
             raise BagCorruptError(
-                blame_file(bag.path), f"{topic}: message {done + err.index + 1}: {err}"
+                blame_file(bag.path), f"{topic}: message {done + err.index + 1}: {err.cause}"
             ) from err
         except Exception as err:  # noqa: BLE001 - slow path: rosbags SerdeError
             raise BagCorruptError(blame_file(bag.path), f"{topic}: cannot decode: {err}") from err

@@ -14,6 +14,9 @@ on Jazzy and Kilted, from bags recorded by ``ros2 bag record``:
   chunk and message indexes, a Statistics record (total and per-channel message counts, time
   range) and the ``rosbag2`` metadata record, all written by rosbags.
 - sqlite3: schema version 4 with ``message_definitions`` and a ``metadata`` table.
+- Optional zstd chunk compression for MCAP (``compression="zstd"``, what ``ros2 bag record
+  --storage-preset-profile zstd_fast`` writes): metadata.yaml keeps ``compression_mode: ''``
+  (the compression is inside the storage file), every MCAP reader decompresses it.
 
 Topic names are stored absolute (``/rig_state``), as ``ros2 bag record`` stores the fully
 qualified names; relative names given here are qualified with ``namespace`` (default ``/``).
@@ -41,7 +44,7 @@ from rosbags.interfaces import (
     QosReliability,
     QosTime,
 )
-from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
 
 from clutch_ros.bag.errors import BagError, BagExistsError, MessageFieldError, UnknownTypeError
 from clutch_ros.bag.typestore import (
@@ -62,6 +65,7 @@ __all__ = [
     "SENSOR_DATA_QOS",
     "STORAGES",
     "TOPICS",
+    "COMPRESSIONS",
     "BagWriter",
     "make_qos",
     "storage_plugin",
@@ -105,6 +109,8 @@ TOPICS: dict[str, tuple[str, Qos]] = {
 
 #: Storage identifiers accepted by :class:`BagWriter`.
 STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+#: Compression choices of :class:`BagWriter` (``zstd``: MCAP chunk compression).
+COMPRESSIONS = ("none", "zstd")
 
 
 def storage_plugin(storage: str) -> StoragePlugin:
@@ -147,10 +153,12 @@ class BagWriter:
         delete_on_error: remove the bag directory if the ``with`` block raises (for imports;
             a recorder keeps partial data instead).
         verify: on close, reopen the bag and check the declared and stored counts.
+        compression: ``"none"`` (default) or ``"zstd"``: zstd-compressed MCAP chunks (about
+            half the size for rig data; MCAP only).
 
     Raises:
         BagExistsError: ``path`` exists.
-        ConfigError: unknown storage.
+        ConfigError: unknown storage or compression, or zstd with sqlite3.
 
     """
 
@@ -164,10 +172,18 @@ class BagWriter:
         namespace: str = "/",
         delete_on_error: bool = False,
         verify: bool = True,
+        compression: str = "none",
     ):
         self.path = Path(path)
         self.storage = str(storage).lower()
         self._plugin = storage_plugin(storage)
+        self.compression = str(compression).lower()
+        if self.compression not in COMPRESSIONS:
+            raise ConfigError(
+                f"unknown bag compression {compression!r}; use one of: {', '.join(COMPRESSIONS)}"
+            )
+        if self.compression != "none" and self._plugin != StoragePlugin.MCAP:
+            raise ConfigError(f"{self.compression} compression needs the mcap storage")
         self.store = store or clutch_typestore()
         self.namespace = namespace
         self.delete_on_error = delete_on_error
@@ -194,6 +210,8 @@ class BagWriter:
         if self.path.exists():
             raise BagExistsError(self.path, "output exists already; bags are never overwritten")
         writer = Writer(self.path, version=Writer.VERSION_LATEST, storage_plugin=self._plugin)
+        if self.compression == "zstd":
+            writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         for key, value in self._custom.items():
             writer.set_custom_data(key, value)
         try:
@@ -297,6 +315,14 @@ class BagWriter:
         self.written[topic] = 0
         return topic
 
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Set a ``metadata.yaml`` ``custom_data`` entry (any time before :meth:`close`)."""
+        if self.closed:
+            raise BagError(self.path, "bag is closed")
+        self._custom[str(key)] = str(value)
+        if self._writer is not None:
+            self._writer.set_custom_data(str(key), str(value))
+
     def mark_dropped(self, topic: str, count: int = 1) -> None:
         """Record that ``count`` messages of ``topic`` were lost before reaching the writer.
 
@@ -370,6 +396,7 @@ def write_rig_states(
     frame_id: str = "rig",
     custom_data: Mapping[str, str] | None = None,
     on_sample: Callable[[int], None] | None = None,
+    compression: str = "none",
 ) -> BagWriter:
     """Write a ``RigState`` bag from ``(stamp_ns, fields)`` samples (the import back end).
 
@@ -385,12 +412,19 @@ def write_rig_states(
         frame_id: header frame id.
         custom_data: stored in ``metadata.yaml``.
         on_sample: called with the number of messages written so far after each message.
+        compression: ``"none"`` or ``"zstd"`` (MCAP chunk compression).
 
     Returns:
         the closed writer (``written``, ``first_ns``, ``last_ns``).
 
     """
-    writer = BagWriter(out_bag, storage=storage, custom_data=custom_data, delete_on_error=True)
+    writer = BagWriter(
+        out_bag,
+        storage=storage,
+        custom_data=custom_data,
+        delete_on_error=True,
+        compression=compression,
+    )
     with writer:
         name = writer.add_topic(topic, RIG_STATE)
         count = 0

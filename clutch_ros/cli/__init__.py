@@ -1,4 +1,4 @@
-"""The ``clutch`` command: import, replay and the simulated-rig demo.
+"""The ``clutch`` command: import, replay, fit, calibrate, the demo and the closed loop.
 
 Every subcommand prints a clear one-line error and exits non-zero on bad input (never a
 traceback; set ``CLUTCH_DEBUG=1`` to see one). ``--json`` prints machine-readable results on
@@ -21,14 +21,14 @@ __all__ = ["main", "build_parser"]
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the argument parser of ``clutch`` with all subcommands."""
-    from clutch_ros.cli import closed_loop_cmd, demo, import_cmd, replay
+    from clutch_ros.cli import calibrate, closed_loop_cmd, demo, fit, import_cmd, replay
 
     parser = argparse.ArgumentParser(
         prog="clutch",
         description="Wet lamella clutch torque estimation: import rig data, replay bags "
                     "through the model, run the simulated rig end to end.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in (import_cmd, replay, demo, closed_loop_cmd):
+    for module in (import_cmd, replay, fit, calibrate, demo, closed_loop_cmd):
         module.add_parser(sub)
     return parser
 

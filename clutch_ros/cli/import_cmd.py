@@ -3,8 +3,12 @@
 CSV: the DESIGN.md columns (units in the header names, converted to SI), one message per row.
 CAN logs (any python-can log format, picked by suffix: .asc, .blf, .log, .trc, .csv of
 python-can ...): decoded through ``params/rig.dbc`` by the same path as the live bridge, one
-RigState per ``--period`` of log time. With several inputs, ``-o`` is a directory and each
-input becomes ``<o>/<input stem>``. A progress bar goes to stderr.
+RigState per ``--period`` of log time in which a frame arrived (a sample repeating the last
+stamp carries nothing new and is left out); ``--frames`` also stores every frame as it was
+logged (error frames included) as ``CanFrame`` on ``/can_frames`` (CAN FD payloads beyond 8
+bytes are cut to 8, ``dlc`` keeps the length, as the live bridge does). With several
+inputs, ``-o`` is a directory and each input becomes ``<o>/<input stem>``. A progress bar
+goes to stderr when it is a terminal; an import that fails deletes its partial bag.
 """
 
 from __future__ import annotations
@@ -33,18 +37,35 @@ def add_parser(sub) -> None:
     p.add_argument("--period", type=float, default=0.001,
                    help="CAN logs: RigState sample period of log time [s] (default 0.001)")
     p.add_argument("--dbc", help="CAN logs: DBC file (default: the package's rig.dbc)")
+    p.add_argument("--frames", action="store_true",
+                   help="CAN logs: also store every frame as CanFrame on /can_frames")
     p.add_argument("--json", action="store_true", help="print a JSON list of imports")
     p.set_defaults(func=run)
 
 
 class _Progress:
-    """A one-line progress bar on stderr (redrawn at most 10 times a second)."""
+    """A one-line progress bar on stderr (redrawn at most 10 times a second).
 
-    def __init__(self, label: str):
+    Drawn only when stderr is a terminal (``enabled``), so logs and the one-line error
+    messages of a failed import stay clean; :meth:`end` finishes a started line.
+    """
+
+    def __init__(self, label: str, enabled: bool | None = None):
         self.label = label
         self._last = 0.0
+        self.enabled = sys.stderr.isatty() if enabled is None else enabled
+        self._open = False
+
+    def end(self) -> None:
+        """Terminate a partly drawn bar (before an error message is printed)."""
+        if self._open:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+            self._open = False
 
     def __call__(self, fraction: float) -> None:
+        if not self.enabled:
+            return
         now = time.monotonic()
         if now - self._last < 0.1 and fraction < 1.0:
             return
@@ -52,8 +73,10 @@ class _Progress:
         filled = int(30 * min(max(fraction, 0.0), 1.0))
         sys.stderr.write(f"\r{self.label} [{'#' * filled}{'.' * (30 - filled)}] "
                          f"{100 * fraction:5.1f} %")
+        self._open = True
         if fraction >= 1.0:
             sys.stderr.write("\n")
+            self._open = False
         sys.stderr.flush()
 
 
@@ -74,16 +97,22 @@ def run(args) -> int:
         kind = args.format if args.format != "auto" else (
             "csv" if path.suffix.lower() in CSV_SUFFIXES else "can")
         progress = _Progress(path.name)
-        if kind == "csv":
-            from clutch_ros.bag.csv_import import import_csv
+        try:
+            if kind == "csv":
+                from clutch_ros.bag.csv_import import import_csv
 
-            s = import_csv(path, target, storage=args.storage, progress=progress)
-            results.append({"source": str(path), "bag": str(s.bag), "format": "csv",
-                            "messages": s.messages, "duration_s": s.duration_s,
-                            "ignored_columns": s.ignored_columns})
-        else:
-            results.append(_import_can(path, target, args, progress))
-        progress(1.0)
+                s = import_csv(path, target, storage=args.storage, progress=progress)
+                results.append({"source": str(path), "bag": str(target), "format": "csv",
+                                "messages": s.messages, "duration_s": s.duration_s,
+                                "ignored_columns": s.ignored_columns})
+            else:
+                results.append(_import_can(path, target, args, progress))
+            progress(1.0)
+        finally:
+            progress.end()
+        if results[-1]["messages"] == 0:
+            sys.stderr.write(f"clutch import: warning: {path}: no RigState sample (no rig "
+                             "frame of the DBC in the log); the bag holds none\n")
     if args.json:
         from clutch_ros.cli import emit_json
 
@@ -95,10 +124,26 @@ def run(args) -> int:
     return 0
 
 
+class _Tap:
+    """An assembler stand-in that hands every frame to ``sink`` before assembling it."""
+
+    def __init__(self, assembler, sink):
+        self._assembler = assembler
+        self._sink = sink
+
+    def feed(self, msg) -> None:
+        self._sink(msg)
+        self._assembler.feed(msg)
+
+    def snapshot(self, now=None):
+        return self._assembler.snapshot(now)
+
+
 def _import_can(path: Path, target: Path, args, progress) -> dict:
     import math
 
-    from clutch_ros.bag.writer import write_rig_states
+    from clutch_ros.bag.typestore import CAN_FRAME, RIG_STATE, can_frame_msg, rig_state_msg
+    from clutch_ros.bag.writer import BagWriter
     from clutch_ros.canbus import LogSource, RigDatabase, RigStateAssembler
 
     source = LogSource(path)
@@ -107,27 +152,59 @@ def _import_can(path: Path, target: Path, args, progress) -> dict:
     size = max(path.stat().st_size, 1)
     fields = ("actuating_pressure", "lamella_temperature", "oil_temperature", "input_speed",
               "output_speed", "slip_speed", "measured_torque", "torque_request", "pump_current")
+    counts = {"repeated": 0, "truncated": 0}
+    writer = BagWriter(target, storage=args.storage, delete_on_error=True,
+                       custom_data={"source": str(path)})
+    with writer:
+        rig_topic = writer.add_topic("/rig_state", RIG_STATE)
+        frame_topic = writer.add_topic("/can_frames", CAN_FRAME) if args.frames else None
 
-    def samples():
-        for n, sample in enumerate(source.samples(assembler, args.period)):
+        def store_frame(msg) -> None:
+            stamp_ns = _stamp_ns(path, msg.timestamp)
+            data = bytes(msg.data)
+            counts["truncated"] += len(data) > 8
+            writer.write(frame_topic, stamp_ns, can_frame_msg(
+                stamp_ns, msg.arbitration_id, data[:8], dlc=min(msg.dlc, 255),
+                is_rtr=msg.is_remote_frame, is_extended=msg.is_extended_id,
+                is_error=msg.is_error_frame))
+
+        feeder = _Tap(assembler, store_frame) if frame_topic else assembler
+        last_ns = None
+        for n, sample in enumerate(source.samples(feeder, args.period)):
+            if n % 2000 == 0:
+                progress(min(0.99, source.frames_read * 40 / size))
             if sample.stamp is None:
                 continue
+            stamp_ns = _stamp_ns(path, sample.stamp)
+            if stamp_ns == last_ns:  # no frame since the last sample: nothing new
+                counts["repeated"] += 1
+                continue
+            last_ns = stamp_ns
             values = {name: float(getattr(sample, name)) for name in fields}
             values.update(has_measured_torque=bool(sample.has_measured_torque and
                                                    math.isfinite(sample.measured_torque)),
                           ff_voltages=list(sample.ff_voltages),
                           wheel_speeds=list(sample.wheel_speeds),
                           stale_mask=int(sample.stale_mask))
-            if n % 2000 == 0:
-                progress(min(0.99, source.frames_read * 40 / size))
-            yield int(round(sample.stamp * 1e9)), values
-
-    writer = write_rig_states(target, samples(), storage=args.storage,
-                              custom_data={"source": str(path)})
+            writer.write(rig_topic, stamp_ns, rig_state_msg(stamp_ns, frame_id="rig", **values))
+    rig_count = writer.written[rig_topic]
     counters = assembler.counters()
-    first, last = writer.first_ns or 0, writer.last_ns or 0
-    return {"source": str(path), "bag": str(target), "format": "can",
-            "messages": sum(writer.written.values()), "duration_s": (last - first) / 1e9,
-            "frames": counters.frames_total, "decoded_frames": counters.decoded_frames,
-            "unknown_frames": counters.unknown_frames, "error_frames": counters.error_frames,
-            "decode_errors": counters.decode_errors}
+    first, last = (writer.first_ns or 0), (writer.last_ns or 0)
+    result = {"source": str(path), "bag": str(target), "format": "can",
+              "messages": rig_count, "duration_s": (last - first) / 1e9 if rig_count else 0.0,
+              "frames": counters.frames_total, "decoded_frames": counters.decoded_frames,
+              "unknown_frames": counters.unknown_frames, "error_frames": counters.error_frames,
+              "decode_errors": counters.decode_errors, "repeated_samples": counts["repeated"]}
+    if frame_topic:
+        result.update(can_frames=writer.written[frame_topic],
+                      truncated_fd_frames=counts["truncated"])
+    return result
+
+
+def _stamp_ns(path: Path, seconds: float) -> int:
+    """Log time [s] -> ROS stamp [ns]; a clear error outside ROS Time's int32 seconds."""
+    stamp_ns = int(round(seconds * 1e9))
+    if not 0 <= stamp_ns < 2**31 * 1_000_000_000:
+        raise ClutchError(f"{path}: frame time {seconds:.6f} s does not fit a ROS Time "
+                          "(0 .. 2^31 s since the epoch)")
+    return stamp_ns

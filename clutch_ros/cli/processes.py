@@ -51,6 +51,10 @@ class NodeProcess:
         self.name = name
         log_dir.mkdir(parents=True, exist_ok=True)
         self.log_path = log_dir / f"{name}.log"
+        restart = 1
+        while self.log_path.exists():  # a restarted node keeps the earlier log
+            restart += 1
+            self.log_path = log_dir / f"{name}.{restart}.log"
         self._log = open(self.log_path, "w")  # noqa: SIM115 - closed in stop()
         cmd = [sys.executable, "-m", f"clutch_ros.nodes.{name}", *args]
         try:

@@ -7,7 +7,8 @@ node's per-sample ``update()`` (bad samples skipped the same way). Per bag it re
 model's torque RMSE against the measured torque, the Eq. 1 reference RMSE with the same
 friction law, the fraction of samples with accuracy in [0.9, 1.1] where the torque is above
 5 % of its maximum, and the accuracy extremes. ``-o`` writes one ClutchEstimate per accepted
-input sample (stamp = input stamp) on ``/clutch_estimate``; ``--report`` writes PNG plots.
+input sample (header = input header, as the node publishes it) on ``/clutch_estimate``;
+``--report`` writes PNG plots. The work is done by :mod:`clutch_ros.bag.replay`.
 """
 
 from __future__ import annotations
@@ -40,23 +41,16 @@ def add_parser(sub) -> None:
 
 def replay_bag(bag: Path, params) -> tuple[object, object]:
     """Return ``(rig arrays, EstimateBatch)`` for one bag (bad samples skipped)."""
-    import numpy as np
+    from clutch_ros.bag.replay import replay_bag as replay
 
-    from clutch_ros.bag.reader import read_rig_states
-    from clutch_ros.model import estimate_batch
-
-    rig = read_rig_states(bag)
-    if len(rig) == 0:
-        raise ClutchError(f"{bag}: no RigState messages")
-    measured = np.where(rig.has_measured_torque.astype(bool), rig.measured_torque, np.nan)
-    batch = estimate_batch(params, rig.stamp, rig.actuating_pressure, rig.lamella_temperature,
-                           rig.slip_speed, measured, on_reject="skip")
-    return rig, batch
+    result = replay(bag, params)
+    return result.rig, result.batch
 
 
 def run(args) -> int:
     """Replay every bag; print one summary line (or JSON object) per bag."""
-    from clutch_ros.model import accuracy_summary
+    from clutch_ros.bag.replay import replay_bag as replay
+    from clutch_ros.bag.replay import write_estimates
     from clutch_ros.params_file import load_params
     from clutch_ros.presets import preset_path
 
@@ -65,25 +59,31 @@ def run(args) -> int:
         params = params.with_law(args.law)
     bags = [Path(b) for b in args.bags]
     outs = _outputs(bags, args.output)
+    for out in outs:  # fail before any work, not after the first bag
+        if out is not None and out.exists():
+            raise ClutchError(f"{out}: output exists already; bags are never overwritten")
     results = []
     for bag, out in zip(bags, outs):
         start = time.perf_counter()
-        rig, batch = replay_bag(bag, params)
-        ok = batch.accepted
-        summary = accuracy_summary(batch.measured_torque[ok], batch.modelled_torque[ok],
-                                   batch.reference_torque[ok])
+        result = replay(bag, params)
+        summary = result.summary
         seconds = time.perf_counter() - start
-        summary.update(bag=str(bag), law=params.spline.law, samples=int(len(rig)),
-                       accepted=int(ok.sum()), skipped=int((~ok).sum()),
-                       seconds=seconds, samples_per_s=len(rig) / max(seconds, 1e-9))
+        summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
         if out is not None:
-            _write_estimates(out, batch, args.storage)
+            summary["estimates_written"] = write_estimates(out, result, storage=args.storage)
             summary["output"] = str(out)
         if args.report:
             from clutch_ros.cli.replay_report import plot_replay
 
-            summary["plots"] = [str(p) for p in plot_replay(bag, rig, batch, Path(args.report))]
+            summary["plots"] = [str(p) for p in
+                                plot_replay(bag, result.rig, result.batch, Path(args.report))]
         results.append(summary)
+    if args.report and len(results) > 1:
+        from clutch_ros.cli.replay_report import plot_summary
+
+        overview = str(plot_summary(results, Path(args.report)))
+        for summary in results:
+            summary["plots"].append(overview)
     if args.json:
         from clutch_ros.cli import emit_json
 
@@ -104,30 +104,11 @@ def _outputs(bags, output):
     out = Path(output)
     if len(bags) == 1:
         return [out]
+    if out.exists() and not out.is_dir():
+        raise ClutchError(f"{out}: not a directory (several bags write one output bag each)")
+    names = [bag.name for bag in bags]
+    if len(set(names)) != len(names):
+        raise ClutchError("several input bags share a name; replay them into separate -o "
+                          "directories")
     out.mkdir(parents=True, exist_ok=True)
-    return [out / bag.name for bag in bags]
-
-
-def _write_estimates(out: Path, batch, storage: str) -> None:
-    from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, clutch_estimate_msg
-    from clutch_ros.bag.writer import BagWriter
-
-    with BagWriter(out, storage=storage, delete_on_error=True) as writer:
-        topic = writer.add_topic("/clutch_estimate", CLUTCH_ESTIMATE)
-        for i in range(len(batch.stamp)):
-            if not batch.accepted[i]:
-                continue
-            stamp_ns = int(round(float(batch.stamp[i]) * 1e9))
-            msg = clutch_estimate_msg(
-                stamp_ns,
-                **{name: getattr(batch, name)[i] for name in _ESTIMATE_FIELDS},
-                spline_law=batch.spline_law)
-            writer.write(topic, stamp_ns, msg)
-
-
-_ESTIMATE_FIELDS = (
-    "modelled_torque", "reference_torque", "measured_torque", "torque_accuracy",
-    "friction_coefficient", "lamella_normal_force", "spline_friction_force", "front_pressure",
-    "rear_pressure", "pressure_difference", "slip_speed_filtered", "actuating_pressure",
-    "lamella_temperature", "overshoot", "undershoot",
-)
+    return [out / name for name in names]

@@ -1,15 +1,16 @@
-"""PNG report of one replayed bag: torque and accuracy over time, P_diff, RMSE bars.
+"""PNG report of replayed bags: per bag curves and RMSE bars, per sequence an overview.
 
 Like the thesis's Figs. 55-57: measured vs modelled vs reference (Eq. 1) torque, the torque
 accuracy of model and reference with the ±10 % band, the modelled P_diff, and the RMSE of
-model and reference side by side.
+model and reference side by side (:func:`plot_replay`); and, per bag (sequence), the RMSE and
+the share of samples within ±10 % of reference and model (:func:`plot_summary`).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["plot_replay"]
+__all__ = ["plot_replay", "plot_summary"]
 
 
 def plot_replay(bag: Path, rig, batch, out_dir: Path) -> list[Path]:
@@ -64,3 +65,36 @@ def plot_replay(bag: Path, rig, batch, out_dir: Path) -> list[Path]:
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return [path]
+
+
+def plot_summary(results: list[dict], out_dir: Path) -> Path:
+    """Write ``replay_summary.png``: RMSE and within-±10 % per bag, reference vs model."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    names = [Path(r["bag"]).name for r in results]
+    y = np.arange(len(results))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 1.2 + 0.45 * len(results)), sharey=True)
+    for ax, (key, ref_key, label, scale) in zip(axes, (
+            ("rmse_nm", "reference_rmse_nm", "RMSE [N m]", 1.0),
+            ("within_10pct", "reference_within_10pct", "samples within ±10 % [%]", 100.0))):
+        ref = [scale * float(r.get(ref_key, float("nan"))) for r in results]
+        model = [scale * float(r[key]) for r in results]
+        ax.barh(y + 0.2, ref, height=0.4, color="tab:orange", label="reference (Eq. 1)")
+        ax.barh(y - 0.2, model, height=0.4, color="tab:red",
+                label=f"model ({results[0]['law']})")
+        ax.set_xlabel(label)
+        ax.grid(axis="x", alpha=0.3)
+    axes[0].set_yticks(y, names, fontsize=8)
+    axes[0].invert_yaxis()
+    axes[1].legend(fontsize=8, loc="lower right")
+    fig.suptitle("replay: reference vs model per sequence")
+    fig.tight_layout()
+    path = out_dir / "replay_summary.png"
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

@@ -15,6 +15,24 @@ documents its quantities. Main entry points:
 - :mod:`~clutch_ros.model.metrics` and :mod:`~clutch_ros.model.sequences` (Tables 3-4).
 """
 
+from clutch_ros.model.calibration import (
+    CalibrationComparison,
+    CalibrationError,
+    LamellaPressures,
+    SensorCalibration,
+    calibrate,
+    calibrate_same_force,
+    calibrate_same_sensor,
+    compare_methods,
+    quasi_static_mask,
+)
+from clutch_ros.model.control import (
+    ControlCommand,
+    ControllerOutput,
+    ControllerSettings,
+    TorqueController,
+    command_pressure,
+)
 from clutch_ros.model.errors import (
     DuplicateSample,
     InputError,
@@ -31,6 +49,22 @@ from clutch_ros.model.friction import (
     reference_torque,
     slip_sign,
     torque_capacity,
+)
+from clutch_ros.model.identification import (
+    FREE_PARAMETERS,
+    SAMPLE_BUDGET,
+    FitOptions,
+    FitResult,
+    FitRun,
+    IdentificationError,
+    NoExcitationError,
+    NoMeasuredTorqueError,
+    RunEvaluation,
+    TooShortError,
+    UnidentifiableParameterError,
+    evaluate,
+    fit,
+    initial_params,
 )
 from clutch_ros.model.inverse import (
     PressureSolution,
@@ -113,4 +147,14 @@ __all__ = [
     "Sequence", "SEQUENCE_NAMES", "make_sequence", "step_sequence",
     "incremented_step_sequence", "ramp_sequence", "pbd_sequence", "table3", "table4",
     "concatenate", "rpm_to_rad_s",
+    # identification and FlexiForce calibration
+    "CalibrationComparison", "CalibrationError", "LamellaPressures", "SensorCalibration",
+    "calibrate", "calibrate_same_force", "calibrate_same_sensor", "compare_methods",
+    "quasi_static_mask", "FREE_PARAMETERS", "SAMPLE_BUDGET", "FitOptions", "FitResult",
+    "FitRun", "IdentificationError", "NoExcitationError", "NoMeasuredTorqueError",
+    "RunEvaluation", "TooShortError", "UnidentifiableParameterError", "evaluate", "fit",
+    "initial_params",
+    # control
+    "ControlCommand", "ControllerOutput", "ControllerSettings", "TorqueController",
+    "command_pressure",
 ]

@@ -4,15 +4,26 @@ Messages are published exactly as recorded (raw CDR bytes, header stamps untouch
 recorded timing divided by ``player.rate``, on the recorded topic names made relative (so
 ``-r __ns:=/rig1`` plays into a namespace). ``/clock`` carries the bag time, so nodes started
 with ``use_sim_time:=true`` run on the recording's clock exactly as on the rig. ``rig_state``
-is offered with sensor-data QoS, every other topic reliable. With ``player.loop`` the bag
-repeats (the clock restarts, so sim-time nodes see time jump back; the estimator re-initialises
-on the out-of-order stamp). Without it the node exits when the bag is done
-(``player.exit_when_done``).
+is offered with sensor-data QoS, every other topic reliable. ``player.topics`` selects topics
+(recorded names, with or without the leading slash; a name the bag lacks is an error).
+``player.wait_for_subscribers`` holds playback until every played topic (and ``/clock``)
+has that many subscribers, so no early message is published into the void. With
+``player.loop`` the bag repeats (the clock restarts, so sim-time nodes see time jump back;
+the estimator re-initialises on the out-of-order stamp). Without it the node exits when the
+bag is done (``player.exit_when_done``).
+
+The bag is checked on open (metadata.yaml against the storage) and every message is decoded
+before it is published, so a corrupt bag is never played as garbage: playback stops with one
+``playback stopped: FILE: cause`` error and the node exits with code 1 (2 when the bag cannot
+be opened at all). At the end one line ``player summary: {json}`` gives the messages
+published, the bag time span and the wall time it took.
 """
 
 from __future__ import annotations
 
 import importlib
+import json
+import sys
 import threading
 import time
 
@@ -39,6 +50,10 @@ PARAMS = [
               0.001, 1.0),
     ParamSpec("player.start_delay", 0.5, "wait before the first message so subscribers can "
               "connect", "s", 0.0, 60.0),
+    ParamSpec("player.wait_for_subscribers", 0, "before playing, wait until every played "
+              "topic and /clock has this many subscribers (0: do not wait)", "", 0, 1000),
+    ParamSpec("player.wait_timeout", 30.0, "give up waiting for subscribers after this "
+              "(playback then starts anyway, with a warning)", "s", 0.0, 3600.0),
     ParamSpec("player.exit_when_done", True, "shut the node down at the end of the bag"),
 ]
 
@@ -60,14 +75,17 @@ class BagPlayerNode(Node):
         cfg = self._cfg = declare_params(self, PARAMS)
         if not cfg["player.bag"]:
             raise ValueError("player.bag is required: the bag to play")
-        self._reader = BagReader(cfg["player.bag"]).open()
-        wanted = [t for t in cfg["player.topics"] if t]
-        self._topics = [t for t in self._reader.topics
-                        if not wanted or t in wanted or t.lstrip("/") in wanted]
-        if not self._topics:
-            raise ValueError(f"none of the topics {wanted} is in {cfg['player.bag']} "
-                             f"(it has {list(self._reader.topics)})")
+        #: the error that stopped playback (None while fine)
+        self.error: str | None = None
+        self._reader = BagReader(cfg["player.bag"], verify=True).open()
+        try:
+            self._topics = self._select(cfg["player.topics"])
+            self._reader.check_types(self._topics)
+        except Exception:
+            self._reader.close()
+            raise
         self._pubs = {}
+        self._types = {t: self._reader.topics[t].typename for t in self._topics}
         for topic in self._topics:
             info = self._reader.topics[topic]
             qos = sensor_qos() if topic.endswith("rig_state") else reliable_qos()
@@ -82,6 +100,17 @@ class BagPlayerNode(Node):
         self.get_logger().info(f"playing {', '.join(self._topics)} from {cfg['player.bag']} "
                                f"at {cfg['player.rate']}x")
 
+    def _select(self, topics: list[str]) -> list[str]:
+        have = list(self._reader.topics)
+        wanted = [t for t in topics if t]
+        if not wanted:
+            return have
+        missing = [t for t in wanted if t not in have and "/" + t.lstrip("/") not in have]
+        if missing:
+            raise ValueError(f"player.topics: {', '.join(missing)} not in {self._reader.path} "
+                             f"(it has {', '.join(have) or 'no topics'})")
+        return [t for t in have if t in wanted or t.lstrip("/") in wanted]
+
     def _publish_clock(self, bag_ns: int) -> None:
         if self._clock_pub is not None:
             from rosgraph_msgs.msg import Clock
@@ -90,21 +119,60 @@ class BagPlayerNode(Node):
             sec_to_stamp(bag_ns * 1e-9, msg.clock)
             self._clock_pub.publish(msg)
 
+    def _wait_for_subscribers(self) -> None:
+        need = self._cfg["player.wait_for_subscribers"]
+        if need <= 0:
+            return
+        pubs = list(self._pubs.values()) + ([self._clock_pub] if self._clock_pub else [])
+        end = time.monotonic() + self._cfg["player.wait_timeout"]
+        while not self._stop.is_set():
+            if all(p.get_subscription_count() >= need for p in pubs):
+                return
+            if time.monotonic() > end:
+                self.get_logger().warning(f"playing although not every topic has {need} "
+                                          "subscriber(s) yet")
+                return
+            self._stop.wait(0.05)
+
     def _play(self) -> None:
         cfg = self._cfg
+        wall = 0.0
         try:
+            self._wait_for_subscribers()
             self._stop.wait(cfg["player.start_delay"])
+            start = time.monotonic()
             while not self._stop.is_set():
                 self._play_once(cfg["player.rate"], cfg["player.clock_period"])
                 if not cfg["player.loop"]:
                     break
-            self.get_logger().info(f"bag done: {self.played} messages published")
+            wall = time.monotonic() - start
         except Exception as err:  # noqa: BLE001 - a corrupt bag is reported, not a crash
+            if self._stop.is_set() or not self.context.ok():
+                return  # shut down (Ctrl-C) while publishing: not a playback error
+            self.error = str(err)
             self.get_logger().error(f"playback stopped: {err}")
+        reader = self._reader
+        span = (reader.end_ns - reader.start_ns) / 1e9 if reader.message_count else 0.0
+        summary = {"published": self.played, "bag_span_s": span, "wall_s": wall,
+                   "rate": cfg["player.rate"], "topics": self._topics, "error": self.error}
+        self.get_logger().info(f"player summary: {json.dumps(summary)}")
         if cfg["player.exit_when_done"] and not self._stop.is_set():
             import rclpy
 
             rclpy.try_shutdown()
+
+    def _check(self, topic: str, bag_ns: int, data) -> None:
+        """Decode one message so a corrupt one stops playback instead of being published."""
+        from clutch_ros.bag.diagnose import blame_file
+        from clutch_ros.bag.errors import BagCorruptError
+
+        typename = self._types[topic]
+        try:
+            self._reader.store.deserialize_cdr(data, typename)
+        except Exception as err:  # noqa: BLE001 - SerdeError, struct.error, ...
+            raise BagCorruptError(blame_file(self._reader.path),
+                                  f"message {self.played + 1} on {topic} at {bag_ns} ns cannot "
+                                  f"be decoded as {typename}: {err}") from err
 
     def _play_once(self, rate: float, clock_period: float) -> None:
         start_wall = time.monotonic()
@@ -112,6 +180,7 @@ class BagPlayerNode(Node):
         for topic, bag_ns, data in self._reader.messages(self._topics, raw=True):
             if self._stop.is_set():
                 return
+            self._check(topic, bag_ns, data)  # then published as the recorded bytes
             start_bag = bag_ns if start_bag is None else start_bag
             due = start_wall + (bag_ns - start_bag) * 1e-9 / rate
             while (wait := due - time.monotonic()) > 0.0:
@@ -131,8 +200,25 @@ class BagPlayerNode(Node):
 
 
 def main(args=None) -> int:
-    """Console entry point: ``ros2 run clutch_ros bag_player``."""
-    return run_node(NAME, __doc__, PARAMS, BagPlayerNode, args)
+    """Console entry point: ``ros2 run clutch_ros bag_player``.
+
+    Returns 0 after a complete playback, 1 when playback stopped on an error, 2 when the bag
+    cannot be opened or the parameters are invalid (one error line, no traceback).
+    """
+    from clutch_ros.errors import ClutchError
+
+    nodes: list[BagPlayerNode] = []
+
+    def factory() -> BagPlayerNode:
+        nodes.append(BagPlayerNode())
+        return nodes[-1]
+
+    try:
+        code = run_node(NAME, __doc__, PARAMS, factory, args)
+    except (ClutchError, ValueError) as err:
+        sys.stderr.write(f"[ERROR] [{NAME}]: cannot play: {err}\n")
+        return 2
+    return 1 if nodes and nodes[0].error else code
 
 
 if __name__ == "__main__":

@@ -7,8 +7,9 @@ each RigState into one output message:
 * ``estimator``: the estimator node (flexiforce_8 preset), with the SingleThreadedExecutor and
   with ``rclpy.experimental.EventsExecutor``.
 
-For each it measures, from this process (publisher and subscriber on one node, spun in a
-background thread; the benchmark's own overhead is in every row alike):
+For each it measures, with a publisher process (``bench pub``) feeding the node under test
+and this process receiving its output on an EventsExecutor (so the probe is never the
+bottleneck; its overhead is in every row alike):
 
 * throughput: a flood of ``--flood`` RigState messages published as fast as possible (sensor
   QoS, as on the rig); outputs per second between the first and last output, and the
@@ -35,6 +36,7 @@ import numpy as np
 __all__ = ["main"]
 
 ECHO = "echo"
+PUB = "pub"
 
 
 def _echo_main() -> int:
@@ -54,110 +56,108 @@ def _echo_main() -> int:
     return run_node("bench_echo", "bare echo node", [], EchoNode, sys.argv[2:])
 
 
-class _Probe:
-    """Publisher of RigState and subscriber of the node's output, spun in a thread."""
+def _pub_main(argv: list[str]) -> int:
+    """Publish at 1 kHz for ``seconds`` (frame_id "rate"), then a flood ("flood")."""
+    import rclpy
+    from clutch_msgs.msg import RigState
 
-    def __init__(self, out_topic: str, out_type):
-        import rclpy
-        from clutch_msgs.msg import RigState
-        from rclpy.executors import SingleThreadedExecutor
+    from clutch_ros.nodes.common import sensor_qos
 
-        from clutch_ros.nodes.common import reliable_qos, sensor_qos
+    seconds, flood = float(argv[0]), int(argv[1])
+    rclpy.init(args=[sys.argv[0], *argv[2:]])
+    node = rclpy.create_node(f"bench_pub_{os.getpid()}")
+    pub = node.create_publisher(RigState, "rig_state", sensor_qos())
+    msg = RigState()
+    msg.actuating_pressure, msg.lamella_temperature, msg.slip_speed = 20e5, 40.0, 1.047
+    msg.measured_torque, msg.has_measured_torque = 600.0, True
 
-        rclpy.init()
-        self.node = rclpy.create_node(f"bench_probe_{os.getpid()}")
-        qos = sensor_qos() if out_type is RigState else reliable_qos()
-        self.received: list[tuple[float, float]] = []  # (receive time, input stamp) [s]
-        self.node.create_subscription(out_type, out_topic, self._on_output, qos)
-        self.pub = self.node.create_publisher(RigState, "rig_state", sensor_qos())
-        self.executor = SingleThreadedExecutor()
-        self.executor.add_node(self.node)
-        self._spin = threading.Thread(target=self.executor.spin, daemon=True)
-        self._spin.start()
-        self.msg = RigState()
-        self.msg.actuating_pressure = 20e5
-        self.msg.lamella_temperature = 40.0
-        self.msg.slip_speed = 1.047
-        self.msg.measured_torque = 600.0
-        self.msg.has_measured_torque = True
-
-    def _on_output(self, msg) -> None:
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        self.received.append((time.time(), stamp))
-
-    def publish(self) -> None:
+    def send(frame_id: str) -> None:
         now = time.time()
-        self.msg.header.stamp.sec = int(now)
-        self.msg.header.stamp.nanosec = int((now - int(now)) * 1e9)
-        self.pub.publish(self.msg)
+        msg.header.stamp.sec = int(now)
+        msg.header.stamp.nanosec = int((now - int(now)) * 1e9)
+        msg.header.frame_id = frame_id
+        pub.publish(msg)
 
-    def wait_connected(self, timeout: float = 30.0) -> None:
-        end = time.monotonic() + timeout
-        while self.pub.get_subscription_count() == 0 or not self.received:
-            if time.monotonic() > end:
-                raise RuntimeError("node under test did not connect")
-            self.publish()
-            time.sleep(0.05)
-        time.sleep(0.5)
-
-    def close(self) -> None:
-        import rclpy
-
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown()
-
-
-def _settle(probe: _Probe, quiet: float = 1.0) -> None:
-    last, since = -1, time.monotonic()
-    while time.monotonic() - since < quiet:
-        if len(probe.received) != last:
-            last, since = len(probe.received), time.monotonic()
+    while pub.get_subscription_count() < 1:  # the node under test
         time.sleep(0.05)
+    end = time.monotonic() + 3.0
+    while time.monotonic() < end:  # warm-up: discovery of the output side settles
+        send("warmup")
+        time.sleep(0.01)
+    start = time.monotonic()
+    for i in range(int(seconds * 1000)):
+        while (wait := start + i * 1e-3 - time.monotonic()) > 0:
+            if wait > 2e-4:
+                time.sleep(wait - 1e-4)
+        send("rate")
+    time.sleep(1.0)
+    for _ in range(flood):
+        send("flood")
+    time.sleep(1.0)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
 
 
 def _measure(cmd: list[str], out_topic: str, out_type, flood: int, seconds: float) -> dict:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(150, 230)),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
-    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    probe = _Probe(out_topic, out_type)
+    import rclpy
+    from clutch_msgs.msg import RigState
+    from rclpy.experimental import EventsExecutor
+
+    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+
+    domain = str(random.randint(150, 230))
+    os.environ.update(ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    received: dict[str, list[tuple[float, float]]] = {"rate": [], "flood": [], "warmup": []}
+
+    def on_output(msg) -> None:
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        received.setdefault(msg.header.frame_id, []).append((time.time(), stamp))
+
+    rclpy.init()
+    node = rclpy.create_node(f"bench_sink_{os.getpid()}")
+    qos = sensor_qos() if out_type is RigState else reliable_qos(depth=1000)
+    node.create_subscription(out_type, out_topic, on_output, qos)
+    executor = EventsExecutor()
+    executor.add_node(node)
+    spin = threading.Thread(target=executor.spin, daemon=True)
+    spin.start()
+    under_test = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.DEVNULL)
+    publisher = subprocess.Popen([sys.executable, "-m", "clutch_ros.nodes.bench", PUB,
+                                  str(seconds), str(flood)], env=env)
     try:
-        probe.wait_connected()
-        # Latency at 1 kHz.
-        probe.received.clear()
-        period, start = 1e-3, time.monotonic()
-        n = int(seconds / period)
-        for i in range(n):
-            while time.monotonic() < start + i * period:
-                pass
-            probe.publish()
-        _settle(probe)
-        lat = np.array([r - s for r, s in probe.received]) * 1e3
-        rate_1k = len(probe.received) / seconds
-        # Throughput: flood.
-        probe.received.clear()
-        for _ in range(flood):
-            probe.publish()
-        _settle(probe)
-        times = np.array([r for r, _ in probe.received])
-        span = times[-1] - times[0] if len(times) > 1 else float("nan")
-        return {"throughput_hz": (len(times) - 1) / span if span > 0 else float("nan"),
-                "delivered": len(times) / flood, "lat_median_ms": float(np.median(lat)),
-                "lat_p99_ms": float(np.percentile(lat, 99)), "rate_at_1khz_hz": rate_1k}
+        publisher.wait(timeout=120 + seconds + flood / 1000)
+        time.sleep(1.0)
     finally:
-        probe.close()
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        for proc in (publisher, under_test):
+            proc.terminate()
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    if not received["warmup"]:
+        raise RuntimeError(f"no output from {' '.join(cmd)}")
+    lat = np.array([r - s for r, s in received["rate"]]) * 1e3
+    times = np.array([r for r, _ in received["flood"]])
+    span = times[-1] - times[0] if len(times) > 1 else float("nan")
+    return {"throughput_hz": (len(times) - 1) / span if span > 0 else float("nan"),
+            "delivered": len(times) / flood,
+            "lat_median_ms": float(np.median(lat)) if lat.size else float("nan"),
+            "lat_p99_ms": float(np.percentile(lat, 99)) if lat.size else float("nan"),
+            "rate_at_1khz_hz": len(lat) / seconds}
 
 
 def main(argv=None) -> int:
     """Run the benchmark and print one row per node under test."""
     if argv is None and len(sys.argv) > 1 and sys.argv[1] == ECHO:
         return _echo_main()
+    if argv is None and len(sys.argv) > 1 and sys.argv[1] == PUB:
+        return _pub_main(sys.argv[2:])
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--flood", type=int, default=20000, help="messages in the flood")
     parser.add_argument("--seconds", type=float, default=5.0, help="1 kHz latency run [s]")

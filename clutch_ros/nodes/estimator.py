@@ -22,7 +22,6 @@ from clutch_ros.nodes.common import (
     declare_params,
     reliable_qos,
     run_node,
-    sensor_qos,
     stamp_to_sec,
 )
 from clutch_ros.nodes.convert import estimate_to_msg
@@ -35,6 +34,8 @@ PARAMS = [
               "relative to the node clock; 0 disables the check", "s", 0.0, 3600.0),
     ParamSpec("estimator.input_timeout", 0.5, "no input for longer than this is reported as "
               "stale on /diagnostics", "s", 0.001, 3600.0),
+    ParamSpec("estimator.queue_depth", 200, "rig_state subscription queue (best effort); "
+              "samples lost anyway are counted", "", 1, 100000),
     ParamSpec("estimator.max_gap", 1.0, "a gap between samples longer than this re-initialises "
               "the pack to equilibrium", "s", 0.001, 3600.0),
 ]
@@ -57,14 +58,28 @@ class EstimatorNode(Node):
         self._last_input = None
         self._last_error = ""
         self._pub = self.create_publisher(_msg_type(), "clutch_estimate", reliable_qos())
+        # Sensor-data QoS (best effort) as the bridge offers it, with a deep queue so a
+        # stall of the estimator does not overwrite samples; samples lost anyway are counted
+        # exactly from the DDS publication sequence numbers.
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        from clutch_ros.bag.record import LossTracker
+
+        self._loss = LossTracker()
+        self._loss.add_topic("rig_state")
         self.create_subscription(_rig_state_type(), "rig_state", self._on_rig_state,
-                                 sensor_qos())
+                                 QoSProfile(depth=self._cfg["estimator.queue_depth"],
+                                            reliability=ReliabilityPolicy.BEST_EFFORT))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
         self.get_logger().info(f"estimating with spline law '{self._params.spline.law}', "
                                f"{self._params.pack.lamella_count} lamellas")
 
-    def _on_rig_state(self, msg) -> None:
+    def _on_rig_state(self, msg, info) -> None:
+        lost = self._loss.received("rig_state", info)
+        if lost:
+            self._skip("lost_in_transport", f"{lost} rig_state samples lost before this one",
+                       count=lost)
         try:
             self._estimate(msg)
         except Exception as err:  # noqa: BLE001 - never die on one sample; diagnose it
@@ -93,8 +108,8 @@ class EstimatorNode(Node):
         self._accepted += 1
         self._pub.publish(estimate_to_msg(est, msg.header, self._pub.msg_type))
 
-    def _skip(self, kind: str, why: str) -> None:
-        self._skipped[kind] = self._skipped.get(kind, 0) + 1
+    def _skip(self, kind: str, why: str, count: int = 1) -> None:
+        self._skipped[kind] = self._skipped.get(kind, 0) + count
         self._last_error = why
         self.get_logger().warning(f"skipped sample ({kind}): {why}",
                                   throttle_duration_sec=5.0)

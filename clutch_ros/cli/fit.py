@@ -1,0 +1,244 @@
+"""``clutch fit BAG... --law LAW -o PARAMS``: grey-box identification from RigState bags.
+
+Reads every bag's RigState stream (:func:`clutch_ros.bag.reader.read_rig_states`), fits the
+friction law, the spline law's parameters and the pack damping to the measured torque (and to
+P_diff where FlexiForce voltages are present) with
+:func:`clutch_ros.model.identification.fit`, and writes a complete parameter file the nodes
+accept: the ``--base`` parameters (default ``flexiforce_8``) with the fitted values. Prints
+each fitted value with its standard error and the fit RMSE; ``--json`` prints values, stderr,
+rmse and the solver figures as JSON on stdout.
+
+P_diff: when the bags carry ``ff_voltages`` (front sensors then rear sensors), the FlexiForce
+sensors are calibrated on the bags themselves (thesis §5.5; ``--calibration same_force``
+(default) or ``same_sensor``, fitted against F_act = p·A on quasi-static samples) and the
+front−rear pressure difference joins the objective with ``--pdiff-weight`` (``--no-pdiff``
+leaves it out). A failed calibration is reported and the fit goes on with the torque alone.
+
+Data that cannot identify the model (no measured torque, constant pressure, too short, a
+parameter without effect or confounded with another) are refused with a one-line error and
+exit code 2; ``--fix KEY`` keeps a parameter at its base value.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import sys
+from pathlib import Path
+
+from clutch_ros.errors import ClutchError
+
+__all__ = ["add_parser", "run", "main", "load_runs", "standalone"]
+
+LAWS = ("none", "ff_t", "ff_v", "coulomb")
+
+
+def add_parser(sub) -> None:
+    """Register ``clutch fit``."""
+    from clutch_ros.model.identification import SAMPLE_BUDGET
+
+    p = sub.add_parser("fit", help="fit the model to recorded rig data (grey-box)",
+                       description=__doc__.split("\n\n")[0])
+    p.add_argument("bags", nargs="+", metavar="BAG", help="bags holding RigState messages")
+    p.add_argument("--law", required=True, choices=LAWS, help="spline-friction law to fit")
+    p.add_argument("--base", default="flexiforce_8",
+                   help="parameter preset or YAML file giving the unfitted parameters and the "
+                        "start values (default: flexiforce_8)")
+    p.add_argument("-o", "--output", required=True, metavar="PARAMS",
+                   help="parameter YAML file to write")
+    p.add_argument("--fix", action="append", default=[], metavar="KEY",
+                   help="keep this parameter at its base value (repeatable), e.g. "
+                        "friction.temperature_slope")
+    p.add_argument("--calibration", choices=("same_force", "same_sensor"),
+                   default="same_force", help="FlexiForce calibration for P_diff "
+                   "(default: same_force, Eqs. 6-9)")
+    p.add_argument("--no-pdiff", action="store_true",
+                   help="fit the torque only, even when FlexiForce voltages are present")
+    p.add_argument("--pdiff-weight", type=float, default=None, metavar="W",
+                   help="weight of the P_diff residual in torque units (default 0.1)")
+    p.add_argument("--fit-rate", type=float, default=None, metavar="HZ",
+                   help="decimated rate of the fit (default 100 Hz)")
+    p.add_argument("--max-samples", type=int, default=None, metavar="N",
+                   help="segment budget per residual evaluation (default per law: "
+                        + ", ".join(f"{k} {v}" for k, v in SAMPLE_BUDGET.items()) + ")")
+    p.add_argument("--max-seconds", type=float, default=45.0, metavar="S",
+                   help="stop the solver at its best point after about S seconds (default "
+                        "45; 0: no limit); the result is then flagged as not converged")
+    p.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
+    p.set_defaults(func=run)
+
+
+def load_runs(bags, piston_area: float, *, pdiff: bool = True,
+              calibration: str = "same_force"):
+    """Read the bags into :class:`~clutch_ros.model.identification.FitRun` objects.
+
+    Returns ``(runs, info)``; ``info`` holds the calibration (``calibration``: the fitted
+    :class:`~clutch_ros.model.calibration.SensorCalibration` or None, ``comparison``: both
+    methods compared, ``calibration_error``: why none was fitted).
+    """
+    import numpy as np
+
+    from clutch_ros.bag.reader import read_rig_states
+    from clutch_ros.model.calibration import (
+        CalibrationError,
+        compare_methods,
+        quasi_static_mask,
+    )
+    from clutch_ros.model.identification import FitRun
+
+    arrays = []
+    for bag in bags:
+        rig = read_rig_states(Path(bag))
+        if len(rig) == 0:
+            raise ClutchError(f"{bag}: no RigState messages")
+        arrays.append((Path(bag), rig))
+    info: dict = {"calibration": None, "comparison": None, "calibration_error": None}
+    voltages = []
+    if pdiff:
+        for _, rig in arrays:
+            v = _voltages(rig)
+            voltages.append(v)
+        if all(v is None for v in voltages):
+            info["calibration_error"] = "no FlexiForce voltages in the bags"
+        else:
+            widths = {v.shape[1] for v in voltages if v is not None}
+            try:
+                if len(widths) != 1:
+                    raise CalibrationError(f"the bags have different sensor counts {widths}")
+                vs, forces, masks = [], [], []
+                for (_, rig), v in zip(arrays, voltages):
+                    if v is None:
+                        continue
+                    vs.append(v)
+                    forces.append(rig.actuating_pressure * piston_area)
+                    masks.append(quasi_static_mask(rig.time, rig.actuating_pressure))
+                comparison = compare_methods(np.concatenate(vs), np.concatenate(forces),
+                                             piston_area, np.concatenate(masks))
+                info["comparison"] = comparison
+                info["calibration"] = getattr(comparison, calibration)
+            except CalibrationError as err:
+                info["calibration_error"] = str(err)
+    runs = []
+    for i, (bag, rig) in enumerate(arrays):
+        measured = np.where(rig.has_measured_torque.astype(bool), rig.measured_torque, np.nan)
+        front = rear = None
+        cal = info["calibration"]
+        if cal is not None and voltages[i] is not None:
+            est = cal.pressures(voltages[i], piston_area)
+            front, rear = est.front, est.rear
+        runs.append(FitRun(rig.time, rig.actuating_pressure, rig.lamella_temperature,
+                           rig.slip_speed, measured, name=bag.name, front_pressure=front,
+                           rear_pressure=rear))
+    return runs, info
+
+
+def _voltages(rig):
+    """Return the (n, 2k) FlexiForce voltages of a RigStateArrays, or None when absent."""
+    import numpy as np
+
+    v = getattr(rig, "ff_voltages", None)
+    if v is None or v.ndim != 2 or v.shape[1] < 2 or v.shape[1] % 2:
+        return None
+    lengths = rig.columns.get("ff_voltages.len")
+    if lengths is not None and not (np.asarray(lengths) == v.shape[1]).mean() > 0.5:
+        return None
+    return v
+
+
+def run(args) -> int:
+    """Fit, write the parameter file, print the figures."""
+    from clutch_ros.model.identification import FitOptions, fit
+    from clutch_ros.params_file import load_params, write_params
+    from clutch_ros.presets import preset_path
+
+    if args.pdiff_weight is not None and not args.pdiff_weight >= 0.0:
+        raise ClutchError(f"--pdiff-weight must be >= 0, got {args.pdiff_weight}")
+    if args.fit_rate is not None and not args.fit_rate > 0.0:
+        raise ClutchError(f"--fit-rate must be > 0 Hz, got {args.fit_rate}")
+    if args.max_samples is not None and args.max_samples < 100:
+        raise ClutchError(f"--max-samples must be >= 100, got {args.max_samples}")
+    base = load_params(preset_path(args.base))
+    out = Path(args.output)
+    if out.is_dir():
+        raise ClutchError(f"{out}: is a directory, expected a parameter file name")
+    runs, info = load_runs(args.bags, base.pack.piston_area, pdiff=not args.no_pdiff,
+                           calibration=args.calibration)
+    kwargs = {}
+    if args.pdiff_weight is not None:
+        kwargs["pdiff_weight"] = args.pdiff_weight
+    if args.fit_rate is not None:
+        kwargs["fit_rate_hz"] = args.fit_rate
+    if args.max_samples is not None:
+        kwargs["max_samples"] = args.max_samples
+    if not args.max_seconds >= 0.0:
+        raise ClutchError(f"--max-seconds must be >= 0, got {args.max_seconds}")
+    kwargs["max_seconds"] = args.max_seconds or None
+    result = fit(runs, args.law, base, fixed=args.fix, options=FitOptions(**kwargs))
+    stamp = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
+    header = (f"clutch fit --law {args.law} --base {args.base} ({stamp})\n"
+              f"bags: {', '.join(str(b) for b in args.bags)}\n"
+              f"fit RMSE {result.rmse:.3f} N m; fitted: "
+              + ", ".join(f"{k} = {result.values[k]:.6g} +- {result.stderr[k]:.2g}"
+                          for k in result.keys))
+    write_params(result.params, out, header=header)
+    cal = info["calibration"]
+    if args.json:
+        from clutch_ros.cli import emit_json
+
+        doc = result.to_dict()
+        doc.update(output=str(out), bags=[str(b) for b in args.bags],
+                   pdiff=cal is not None and not args.no_pdiff,
+                   calibration=None if cal is None else cal.to_dict(),
+                   calibration_comparison=(None if info["comparison"] is None
+                                           else _comparison_brief(info["comparison"])),
+                   calibration_error=info["calibration_error"])
+        emit_json(doc)
+    else:
+        lines = [f"fitted law {args.law} on {len(runs)} bag(s) -> {out}"]
+        if cal is not None:
+            lines.append(f"P_diff from FlexiForce voltages ({cal.method} calibration; "
+                         f"{info['comparison'].summary()})")
+        elif not args.no_pdiff and info["calibration_error"]:
+            lines.append(f"no P_diff: {info['calibration_error']}")
+        lines += result.lines()
+        for name, value in zip(result.run_names, result.run_rmse):
+            lines.append(f"  {name}: RMSE {value:.3f} N m")
+        if not result.converged:
+            lines.append(f"warning: the solver stopped early ({result.message})")
+        sys.stdout.write("\n".join(lines) + "\n")
+    return 0
+
+
+def _comparison_brief(comparison) -> dict:
+    doc = comparison.to_dict()
+    return {k: v for k, v in doc.items() if k not in ("same_force", "same_sensor")}
+
+
+def standalone(module, command: str, argv=None) -> int:
+    """Run one subcommand ``module`` as ``clutch COMMAND`` with the CLI's error handling."""
+    parser = argparse.ArgumentParser(prog="clutch")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    module.add_parser(sub)
+    args = parser.parse_args([command, *(sys.argv[1:] if argv is None else argv)])
+    try:
+        return int(args.func(args) or 0)
+    except ClutchError as err:
+        if os.environ.get("CLUTCH_DEBUG"):
+            raise
+        sys.stderr.write(f"clutch {command}: error: {err}\n")
+        return 2
+    except OSError as err:
+        if os.environ.get("CLUTCH_DEBUG"):
+            raise
+        sys.stderr.write(f"clutch {command}: error: {err}\n")
+        return 2
+
+
+def main(argv=None) -> int:
+    """``python -m clutch_ros.cli.fit BAG... --law LAW -o PARAMS`` (same as ``clutch fit``)."""
+    return standalone(sys.modules[__name__], "fit", argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
