@@ -44,6 +44,8 @@ class DemoSeries:
                 else:
                     cmd_t.append(stamp_ns * 1e-9)
                     cmd_p.append(msg.pressure)
+        self.rig_stamp = np.asarray(rig_t)
+        self.est_stamp = np.asarray(est_t)
         self.rig_time = np.asarray(rig_t) - started_at
         self.measured = np.asarray(meas)
         self.pressure = np.asarray(press)
@@ -85,6 +87,17 @@ def _longest_run(flags, t) -> float:
     return float(longest)
 
 
+def _coverage(rig_stamps, est_stamps) -> float:
+    """Fraction of rig samples since the first estimate that got an estimate (same stamp)."""
+    if not len(est_stamps):
+        return 0.0
+    live = rig_stamps[rig_stamps >= est_stamps.min()]
+    if not len(live):
+        return 0.0
+    have = set(np.round(est_stamps * 1e6).astype(np.int64).tolist())
+    return float(np.mean([v in have for v in np.round(live * 1e6).astype(np.int64).tolist()]))
+
+
 def closed_loop_summary(bag, profile, started_at: float) -> dict:
     """Return the demo's figures (see :mod:`clutch_ros.cli.demo`) from its bag."""
     s = load_series(bag, profile, started_at)
@@ -96,6 +109,7 @@ def closed_loop_summary(bag, profile, started_at: float) -> dict:
     over = np.nan_to_num(ratio, nan=0.0) > 1.0 + BAND
     return {
         "within_10pct": within,
+        "estimate_coverage": _coverage(s.rig_stamp, s.est_stamp),
         "settled_samples": int(use.sum()),
         "worst_overshoot": worst,
         "worst_undershoot": float(np.nanmin(ratio)) if use.any() else math.nan,

@@ -8,7 +8,7 @@ each RigState into one output message:
   with ``rclpy.experimental.EventsExecutor``.
 
 For each it measures, with a publisher process (``bench pub``) feeding the node under test
-and this process receiving its output on an EventsExecutor (so the probe is never the
+and this process receiving its output in a thread of its own (so the probe is never the
 bottleneck; its overhead is in every row alike):
 
 * throughput: a flood of ``--flood`` RigState messages published as fast as possible (sensor
@@ -102,7 +102,7 @@ def _pub_main(argv: list[str]) -> int:
 def _measure(cmd: list[str], out_topic: str, out_type, flood: int, seconds: float) -> dict:
     import rclpy
     from clutch_msgs.msg import RigState
-    from rclpy.experimental import EventsExecutor
+    from rclpy.executors import SingleThreadedExecutor
 
     from clutch_ros.nodes.common import reliable_qos, sensor_qos
 
@@ -119,7 +119,9 @@ def _measure(cmd: list[str], out_topic: str, out_type, flood: int, seconds: floa
     node = rclpy.create_node(f"bench_sink_{os.getpid()}")
     qos = sensor_qos() if out_type is RigState else reliable_qos(depth=1000)
     node.create_subscription(out_type, out_topic, on_output, qos)
-    executor = EventsExecutor()
+    # SingleThreadedExecutor: EventsExecutor spun in a background thread was seen to hang
+    # here (busy, no callbacks); the main thread only waits, so the GIL is free for it.
+    executor = SingleThreadedExecutor()
     executor.add_node(node)
     spin = threading.Thread(target=executor.spin, daemon=True)
     spin.start()

@@ -9,7 +9,6 @@ cleanly on SIGINT / SIGTERM.
 from __future__ import annotations
 
 import math
-import signal
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -225,9 +224,10 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
+    # rclpy's own handlers (SignalHandlerOptions.ALL, the default) turn SIGINT and SIGTERM
+    # into a clean shutdown even while the executor waits in C; a Python-level handler would
+    # only run when some callback wakes the executor.
     rclpy.init(args=[sys.argv[0], *argv])
-    # SIGTERM (from a supervisor such as `clutch demo`) shuts down like Ctrl-C.
-    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
     node = None
     try:
         node = factory()

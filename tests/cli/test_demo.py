@@ -39,8 +39,10 @@ def test_closed_loop_accuracy(demo_run):
 
 def test_estimates_flow_at_input_rate(demo_run):
     _, summary = demo_run
-    # One estimate per rig_state sample (both recorded in the same bag).
-    assert summary["estimates"] >= 0.95 * summary["rig_samples"], summary
+    # One estimate per rig_state sample (both recorded in the same bag, matched by stamp),
+    # from the estimator's first output on (before it, it was still starting).
+    assert summary["estimate_coverage"] >= 0.95, summary
+    assert summary["estimates"] >= 0.8 * summary["rig_samples"], summary
     assert summary["estimator_rmse_nm"] < summary["reference_rmse_nm"], summary
 
 
