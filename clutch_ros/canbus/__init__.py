@@ -4,16 +4,23 @@ Modules:
 
 * :mod:`~clutch_ros.canbus.dbc` -- :class:`RigDatabase` (strict DBC, SI decode/encode),
   :class:`PumpRequestCodec` (counter + CRC-8 SAE J1850).
-* :mod:`~clutch_ros.canbus.bus` -- :class:`BusConfig`, :func:`open_bus`,
-  :class:`ReconnectingBus` (bus-off / unplugged adapter recovery with back-off).
+* :mod:`~clutch_ros.canbus.config` -- :class:`BusConfig` (also from node parameters),
+  :func:`open_bus`.
+* :mod:`~clutch_ros.canbus.bus` -- :class:`ReconnectingBus` (bus-off / unplugged adapter
+  recovery with back-off, removal of the udp_multicast echo of our own frames).
+* :mod:`~clutch_ros.canbus.udp` -- udp_multicast specifics: echo filter, group isolation and
+  receive buffer of the socket.
 * :mod:`~clutch_ros.canbus.assembler` -- :class:`RigStateAssembler` (a ``can.Listener``)
   and :class:`RigSample` (one RigState in SI units, with stale mask).
 * :mod:`~clutch_ros.canbus.pump` -- :class:`PumpCommandGate` (PressureCommand -> PumpRequest,
   clamp, rate limit, watchdog).
 * :mod:`~clutch_ros.canbus.logsource` -- :class:`LogSource` (ASC/BLF/any python-can log).
-* :mod:`~clutch_ros.canbus.stats` -- frame counters, rates, rate limiter.
+* :mod:`~clutch_ros.canbus.stats` -- frame counters, rates, rate limiter, RigState pacer.
 * :mod:`~clutch_ros.canbus.errors` -- :class:`CanError` and its subclasses.
-* :mod:`~clutch_ros.canbus.bench` -- ``python -m clutch_ros.canbus.bench``.
+* :mod:`~clutch_ros.canbus.bench` -- ``python -m clutch_ros.canbus.bench`` (receive path).
+* :mod:`~clutch_ros.canbus.node_bench` -- ``python -m clutch_ros.canbus.node_bench``: the
+  can_bridge node process against a bare python-can loop (the one module here that starts
+  ROS, and only when run).
 """
 
 from clutch_ros.canbus.assembler import RigSample, RigStateAssembler

@@ -1,13 +1,19 @@
 """Bus configuration, opening, and a self-healing bus for bus-off and unplugged adapters.
 
-:class:`BusConfig` holds what the can_bridge parameters choose (interface, channel, bitrate,
-filters, ...) and validates it; :func:`open_bus` opens it with python-can, ignoring python-can
-config files so a run is reproducible. :class:`ReconnectingBus` is a :class:`can.BusABC` that
-wraps such a bus: when receiving or sending fails (``CanOperationError``, ``OSError``, ...),
-the controller reports bus-off (``BusState.ERROR`` or a SocketCAN bus-off error frame) or the
-adapter cannot be opened, it closes the bus and reopens it with exponential back-off. It never
-raises from :meth:`~can.BusABC.recv` (so a :class:`can.Notifier` on it never dies), reports
-every state transition to a callback and logs rate-limited (no warning storm).
+:class:`BusConfig`, :func:`open_bus` and :func:`parse_filters` live in
+:mod:`clutch_ros.canbus.config` and are re-exported here. :class:`ReconnectingBus` is a
+:class:`can.BusABC` that wraps such a bus: when receiving or sending fails
+(``CanOperationError``, ``OSError``, ...), the controller reports bus-off (``BusState.ERROR``
+or a SocketCAN bus-off error frame) or the adapter cannot be opened, it closes the bus and
+reopens it with exponential back-off. It never raises from :meth:`~can.BusABC.recv` (so a
+:class:`can.Notifier` on it never dies), reports every state transition to a callback and
+logs rate-limited (no warning storm).
+
+Own frames: python-can's ``udp_multicast`` loops every sent frame back to the sender (the
+socket joins the group it sends to), although it cannot honour ``receive_own_messages``.
+:class:`ReconnectingBus` removes those echoes (:class:`EchoFilter`), so with
+``receive_own_messages=False`` a node never decodes its own PumpRequests, whatever the
+interface.
 """
 
 from __future__ import annotations
@@ -16,150 +22,32 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
 import can
 import can.interfaces
 
+from clutch_ros.canbus.config import BusConfig, open_bus, parse_filters
 from clutch_ros.canbus.errors import BusConfigError, BusUnavailable
 from clutch_ros.canbus.stats import RateLimiter, classify_socketcan_error
+from clutch_ros.canbus.udp import ECHOING_INTERFACES, EchoFilter, tune_udp_multicast
 
 __all__ = [
-    "BusConfig",
+    "BusConfig",  # BusConfig, open_bus, parse_filters: re-exported from canbus.config
+    "EchoFilter",  # EchoFilter, tune_udp_multicast: re-exported from canbus.udp
     "LinkEvent",
     "LinkState",
     "LinkStatus",
     "ReconnectingBus",
     "open_bus",
     "parse_filters",
+    "tune_udp_multicast",
 ]
 
 _LOG = logging.getLogger(__name__)
-_RESERVED = {"interface", "channel", "bitrate", "receive_own_messages", "can_filters", "fd"}
-
-
-def parse_filters(specs: Sequence[str | Mapping[str, Any]]) -> tuple[dict[str, Any], ...]:
-    """Parse CAN filters: dicts (python-can form) or strings ``"ID:MASK"`` / ``"ID:MASK:x"``.
-
-    IDs and masks accept any int literal (``0x100``). ``:x`` marks a 29-bit filter. Raises
-    :class:`BusConfigError` for malformed entries.
-    """
-    out = []
-    for spec in specs:
-        if isinstance(spec, str):
-            parts = spec.strip().split(":")
-            if len(parts) not in (2, 3) or (len(parts) == 3 and parts[2] != "x"):
-                raise BusConfigError(f"CAN filter {spec!r} is not 'ID:MASK' or 'ID:MASK:x'")
-            try:
-                entry: dict[str, Any] = {"can_id": int(parts[0], 0), "can_mask": int(parts[1], 0)}
-            except ValueError as err:
-                raise BusConfigError(f"CAN filter {spec!r}: {err}") from err
-            if len(parts) == 3:
-                entry["extended"] = True
-        elif isinstance(spec, Mapping):
-            entry = dict(spec)
-        else:
-            raise BusConfigError(f"CAN filter {spec!r} is neither a string nor a mapping")
-        can_id, mask = entry.get("can_id"), entry.get("can_mask")
-        if not isinstance(can_id, int) or not isinstance(mask, int):
-            raise BusConfigError(f"CAN filter {spec!r} needs integer can_id and can_mask")
-        if not (0 <= can_id < 1 << 29 and 0 <= mask < 1 << 29):
-            raise BusConfigError(f"CAN filter {spec!r}: id and mask must be 0..0x1FFFFFFF")
-        if set(entry) - {"can_id", "can_mask", "extended"}:
-            raise BusConfigError(f"CAN filter {spec!r} has unknown keys")
-        out.append(entry)
-    return tuple(out)
-
-
-@dataclass(frozen=True)
-class BusConfig:
-    """Which CAN bus to open (validated on construction; raises :class:`BusConfigError`).
-
-    ``interface``: a python-can interface name (socketcan, vector, pcan, kvaser,
-    udp_multicast, virtual, ...); ``channel``: interface specific (``can0``, ``0``,
-    ``PCAN_USBBUS1``, a multicast group, any name for virtual); ``bitrate`` [bit/s] or None
-    for the interface default; ``data_bitrate`` [bit/s] for the CAN FD data phase;
-    ``can_filters``: python-can filter dicts or ``"ID:MASK[:x]"`` strings; ``fd``: None keeps
-    the interface default; ``extra``: further interface keyword arguments (e.g. ``port`` for
-    udp_multicast, ``app_name`` for vector).
-    """
-
-    interface: str = "virtual"
-    channel: str | int | None = "clutch_rig"
-    bitrate: int | None = None
-    receive_own_messages: bool = False
-    can_filters: tuple[dict[str, Any], ...] | None = None
-    fd: bool | None = None
-    data_bitrate: int | None = None
-    extra: Mapping[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.interface, str) or self.interface not in can.interfaces.BACKENDS:
-            raise BusConfigError(
-                f"unknown CAN interface {self.interface!r}; python-can knows: "
-                f"{', '.join(sorted(can.interfaces.BACKENDS))}"
-            )
-        for name in ("bitrate", "data_bitrate"):
-            value = getattr(self, name)
-            if value is not None and (
-                isinstance(value, bool) or not isinstance(value, int) or not 0 < value <= 20_000_000
-            ):
-                raise BusConfigError(f"{name} must be a positive int [bit/s], got {value!r}")
-        if self.data_bitrate is not None and not self.fd:
-            raise BusConfigError("data_bitrate needs fd=True")
-        if self.can_filters is not None:
-            object.__setattr__(self, "can_filters", parse_filters(self.can_filters))
-        if not isinstance(self.extra, Mapping) or set(self.extra) & _RESERVED:
-            raise BusConfigError(f"extra must be a mapping without the keys {sorted(_RESERVED)}")
-        if self.receive_own_messages and self.interface == "udp_multicast":
-            raise BusConfigError("udp_multicast does not support receive_own_messages")
-
-    def kwargs(self) -> dict[str, Any]:
-        """Return the keyword arguments for :func:`can.Bus`."""
-        kwargs: dict[str, Any] = {
-            "interface": self.interface,
-            "channel": self.channel,
-            "receive_own_messages": self.receive_own_messages,
-        }
-        if self.bitrate is not None:
-            kwargs["bitrate"] = self.bitrate
-        if self.data_bitrate is not None:
-            kwargs["data_bitrate"] = self.data_bitrate
-        if self.fd is not None:
-            kwargs["fd"] = self.fd
-        if self.can_filters:
-            kwargs["can_filters"] = [dict(f) for f in self.can_filters]
-        kwargs.update(self.extra)
-        return kwargs
-
-    def describe(self) -> str:
-        """Return ``interface:channel`` for messages."""
-        return f"{self.interface}:{self.channel}"
-
-
-def open_bus(config: BusConfig) -> can.BusABC:
-    """Open the bus described by ``config`` (python-can config files are ignored).
-
-    Raises :class:`BusUnavailable` when the interface driver is missing or the device cannot
-    be opened, :class:`BusConfigError` when python-can rejects the arguments.
-    """
-    try:
-        return can.Bus(ignore_config=True, **config.kwargs())
-    except (TypeError, NotImplementedError) as err:
-        if isinstance(err, can.CanInterfaceNotImplementedError):
-            raise BusUnavailable(
-                f"{config.describe()}: interface not available: {err}"
-            ) from err
-        raise BusConfigError(f"{config.describe()}: invalid bus arguments: {err}") from err
-    except ValueError as err:
-        raise BusConfigError(f"{config.describe()}: invalid bus arguments: {err}") from err
-    except Exception as err:  # CanError, OSError, ImportError, struct.error, driver errors
-        raise BusUnavailable(
-            f"{config.describe()}: cannot open bus: {type(err).__name__}: {err}"
-        ) from err
 
 
 class LinkState(StrEnum):
@@ -196,6 +84,7 @@ class LinkStatus:
     bus_off_frames: int
     bus_state: str
     suppressed_reports: int
+    own_echoes: int = 0
 
 
 class ReconnectingBus(can.BusABC):
@@ -210,8 +99,11 @@ class ReconnectingBus(can.BusABC):
     ``state_poll_interval`` [s]) and, when ``socketcan_error_frames`` (default: only for the
     socketcan interface, whose error frames carry the error class in the identifier), from
     bus-off error frames; ``reconnect_on_bus_off`` reopens the bus then. ``on_event``
-    receives every :class:`LinkEvent`; log warnings are limited to one per
-    ``report_interval`` [s]. The constructor never raises for an
+    receives every :class:`LinkEvent` (called from the thread that saw the transition, with
+    an internal lock held: keep it short); log warnings are limited to one per
+    ``report_interval`` [s]. ``drop_own_echo`` (default: for interfaces that echo, i.e.
+    udp_multicast, unless ``receive_own_messages``) removes received copies of frames this bus
+    sent (counted in :attr:`own_echoes`). The constructor never raises for an
     unavailable bus: it starts DOWN and retries. After :meth:`shutdown`, ``recv`` raises
     ``can.CanOperationError`` like any closed python-can bus (stop the Notifier first).
     """
@@ -234,6 +126,7 @@ class ReconnectingBus(can.BusABC):
         report_interval: float = 10.0,
         on_event: Callable[[LinkEvent], None] | None = None,
         logger: logging.Logger | None = None,
+        drop_own_echo: bool | None = None,
     ) -> None:
         if not (0 < backoff_initial <= backoff_max and backoff_factor >= 1.0):
             raise BusConfigError("need 0 < backoff_initial <= backoff_max and factor >= 1")
@@ -260,6 +153,10 @@ class ReconnectingBus(can.BusABC):
         self._on_event = on_event
         self._log = logger or _LOG
         self._limiter = RateLimiter(report_interval)
+        if drop_own_echo is None:
+            drop_own_echo = (config.interface in ECHOING_INTERFACES
+                             and not config.receive_own_messages)
+        self._echo = EchoFilter(clock) if drop_own_echo else None
         self._lock = threading.RLock()
         self._bus: can.BusABC | None = None
         self._state = LinkState.CONNECTING
@@ -390,6 +287,10 @@ class ReconnectingBus(can.BusABC):
             return None, False
         try:
             msg = bus.recv(timeout)
+            # our own frames looped back: skip them without waiting; when only echoes were
+            # queued, recv() goes on waiting for the rest of its timeout
+            while msg is not None and self._echo is not None and self._echo.is_echo(msg):
+                msg = bus.recv(0.0)
         except Exception as err:  # CanOperationError, OSError, driver errors
             self._fail(bus, f"receive failed: {type(err).__name__}: {err}")
             return None, False
@@ -409,9 +310,13 @@ class ReconnectingBus(can.BusABC):
             self.send_failures += 1
             raise BusUnavailable(f"CAN {self.config.describe()} is {self._state.value}: "
                                  f"{self._reason}")
+        if self._echo is not None:
+            self._echo.sent(msg)  # before sending: the echo can arrive before send returns
         try:
             bus.send(msg, timeout)
         except Exception as err:  # CanOperationError, CanTimeoutError, OSError, ...
+            if self._echo is not None:
+                self._echo.unsent(msg)
             self.send_failures += 1
             with self._lock:
                 self._send_failures_row += 1
@@ -429,6 +334,11 @@ class ReconnectingBus(can.BusABC):
         except BusUnavailable:
             return False
         return True
+
+    @property
+    def own_echoes(self) -> int:
+        """Number of received echoes of this bus's own frames that were removed."""
+        return self._echo.echoes if self._echo is not None else 0
 
     @property
     def link_state(self) -> LinkState:
@@ -471,6 +381,7 @@ class ReconnectingBus(can.BusABC):
                 bus_off_frames=self.bus_off_frames,
                 bus_state=self.state.name,
                 suppressed_reports=self._limiter.suppressed,
+                own_echoes=self.own_echoes,
             )
 
     def shutdown(self) -> None:

@@ -1,4 +1,4 @@
-"""Frame counters, per-identifier rates and a rate limiter for log/diagnostic reporting.
+"""Frame counters, per-identifier rates, a rate limiter for reports, a RigState pacer.
 
 Nothing here takes a lock: :class:`FrameCounters` is updated under the lock of its owner
 (:class:`clutch_ros.canbus.assembler.RigStateAssembler`). Times are seconds in whatever base
@@ -15,6 +15,7 @@ from clutch_ros.canbus.dbc import format_frame_key
 __all__ = [
     "CounterSnapshot",
     "FrameCounters",
+    "PublishPacer",
     "RateLimiter",
     "classify_socketcan_error",
 ]
@@ -170,3 +171,62 @@ class RateLimiter:
             return True
         self.suppressed += 1
         return False
+
+
+class PublishPacer:
+    """Decide when a RigState is published: event driven by frames, at most ``rate``.
+
+    The frame with key ``trigger`` (the one that completes the rig's cycle, e.g. RigSpeed)
+    publishes at once, so a RigState leaves with the frame's latency instead of waiting for a
+    timer. A token bucket (``rate`` [1/s], bursts of ``burst``) caps the average rate without
+    losing a sample to jitter when frames come exactly at ``rate``. While the trigger frame is
+    missing, any frame in ``fallback`` publishes once ``2 / rate`` s passed since the last
+    attempt, so the topic degrades to half the rate instead of stopping. A frame held back by
+    the cap leaves the pacer ``pending``: :meth:`flush`, called from a slow timer, publishes
+    it once the cap allows, so the last state before the bus goes quiet is never withheld.
+    ``trigger`` None: frames never publish and :meth:`flush` is the ``rate`` timer's
+    decision. Times are monotonic seconds passed by the caller; not thread-safe.
+    """
+
+    def __init__(self, rate: float, trigger: int | None, fallback=frozenset(),
+                 burst: float = 2.0) -> None:
+        if not rate > 0.0:
+            raise ValueError(f"rate must be > 0 1/s, got {rate!r}")
+        self.rate, self.trigger, self.fallback, self.burst = rate, trigger, fallback, burst
+        self._tokens, self._last = burst, None
+        #: a frame was held back by the rate cap and not published since
+        self.pending = False
+
+    def on_frame(self, key: int, now: float) -> bool:
+        """Return True when the frame with ``key`` arriving at ``now`` should publish."""
+        if self.trigger is None:
+            return False
+        if key == self.trigger or (key in self.fallback and (
+                self._last is None or (now - self._last) * self.rate > 2.0)):
+            allowed = self.take(now)
+            self.pending = not allowed
+            return allowed
+        return False
+
+    def flush(self, now: float) -> bool:
+        """Timer decision at ``now``: publish a pending frame (or, without trigger, any)."""
+        if self.trigger is not None and not (self.pending and self._last is not None
+                                             and (now - self._last) * self.rate >= 1.0):
+            return False
+        allowed = self.take(now)
+        self.pending = self.pending and not allowed
+        return allowed
+
+    def take(self, now: float) -> bool:
+        """Return True (and use a token) when a publication is allowed at ``now``."""
+        if self._last is not None:
+            self._tokens = min(self.burst, self._tokens + (now - self._last) * self.rate)
+        self._last = now
+        if self._tokens < 1.0:
+            return False
+        self._tokens -= 1.0
+        return True
+
+    def refund(self) -> None:
+        """Give back the token of an allowed publication that did not happen (nothing new)."""
+        self._tokens = min(self.burst, self._tokens + 1.0)

@@ -1,45 +1,51 @@
 """The ``can_bridge`` node: rig CAN frames <-> typed topics, and pump pressure requests.
 
-Receive: a python-can bus (any interface: socketcan, vector, pcan, kvaser, udp_multicast,
-virtual ...) is read on a python-can Notifier thread; frames in the DBC are decoded
-(:mod:`clutch_ros.canbus`) and ``rig_state`` is published at ``bridge.rate`` from the latest
-signals, stamped with the newest contributing frame's bus timestamp (not the publish time),
-only when new frames arrived (an idle bus publishes nothing and warns once, not per sample).
-Signal groups older than their maximum age are flagged in ``stale_mask`` and diagnosed.
-``bridge.publish_raw`` publishes every frame on ``can_frames``.
+Receive: a python-can bus (any interface, chosen by the ``can.*`` parameters) is read on a
+python-can Notifier thread; DBC frames are decoded (:mod:`clutch_ros.canbus`) into the latest
+signals and ``rig_state`` is published, stamped with the newest contributing frame's bus
+timestamp (not the publish time), only when new frames arrived: at once when the
+``bridge.publish_on`` frame (the end of the rig's cycle) arrives, at most ``bridge.rate``
+(:class:`~clutch_ros.canbus.stats.PublishPacer`), or on a ``bridge.rate`` timer when that
+is empty. Stale signal groups are flagged in ``stale_mask`` and diagnosed; an idle bus warns
+once. ``bridge.publish_raw`` publishes every frame on ``can_frames``. Our own frames looped
+back by the interface (udp_multicast) are removed by the bus, never decoded.
 
-Send: ``pressure_command`` goes through :class:`clutch_ros.canbus.PumpCommandGate`: NaN,
-negative and huge commands give a frame within limits, the step is rate limited, and when
-commands stop for ``pump.watchdog_timeout`` the request goes to 0 bar. The request frame
-(rolling counter + CRC-8) is repeated every ``pump.period``; what was applied and why is
-published on ``pump_request`` (PressureCommand).
+Send: ``pressure_command`` goes through :class:`clutch_ros.canbus.PumpCommandGate` (NaN,
+negative, huge -> a frame within limits; rate limit; 0 bar when commands stop for
+``pump.watchdog_timeout``). The PumpRequest (rolling counter + CRC-8) is sent on each command
+and every ``pump.period``; what was applied and why is published on ``pump_request`` for each
+command and whenever it changes. Shutdown sends a last 0 bar request.
 
 Bus errors: error frames are counted; bus-off or an unplugged adapter takes the link down and
-it is reopened with exponential back-off, reported on ``/diagnostics`` (never a crash).
+it is reopened with back-off, reported on ``/diagnostics`` (never a crash).
 ``input.log_file`` replays a Vector ASC/BLF (or any python-can log) through the same decode
-path instead of a live bus, at recorded timing (``input.realtime``) or as fast as possible;
-log timestamps are shifted so that the first frame is stamped with the start time.
+path instead of a bus, at recorded timing (``input.realtime``) or as fast as possible; stamps
+are shifted so that the log's first frame is stamped with the start time.
 """
 
 from __future__ import annotations
 
-import math
+import sys
 import threading
 import time
 
 from rclpy.node import Node
 
+from clutch_ros.canbus.dbc import frame_key
+from clutch_ros.nodes.can_diagnostics import bridge_status, can_frame_msg, rig_state_msg
 from clutch_ros.nodes.common import (
     Diagnostics,
     ParamSpec,
     declare_params,
     reliable_qos,
     run_node,
-    sec_to_stamp,
     sensor_qos,
 )
 
 NAME = "can_bridge"
+IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning
+SEND_TIMEOUT = 0.005  # [s] a pump request never blocks the executor longer
+FLUSH_PERIOD = 0.05  # [s] with publish_on: a frame held back by bridge.rate goes out then
 PARAMS = [
     ParamSpec("can.interface", "udp_multicast", "python-can interface (socketcan, vector, "
               "pcan, kvaser, udp_multicast, virtual, ...)"),
@@ -52,7 +58,9 @@ PARAMS = [
     ParamSpec("can.receive_own_messages", False, "receive frames this node sends"),
     ParamSpec("can.filters", [""], "acceptance filters 'ID:MASK[:x]'; empty: all frames"),
     ParamSpec("bridge.dbc_file", "", "rig DBC; empty: the package's params/rig.dbc"),
-    ParamSpec("bridge.rate", 200.0, "rig_state publishing rate", "Hz", 1.0, 5000.0),
+    ParamSpec("bridge.rate", 200.0, "rig_state publishing rate (at most)", "Hz", 1.0, 5000.0),
+    ParamSpec("bridge.publish_on", "RigSpeed", "DBC frame whose arrival publishes rig_state; "
+              "empty: a bridge.rate timer"),
     ParamSpec("bridge.publish_raw", False, "publish every frame on can_frames"),
     ParamSpec("pump.max_pressure", 40e5, "largest pressure ever requested", "Pa", 1e4, 60e5),
     ParamSpec("pump.rate_limit", 400e5, "maximum rise of the requested pressure", "Pa/s",
@@ -62,6 +70,8 @@ PARAMS = [
     ParamSpec("pump.period", 0.01, "PumpRequest repetition period", "s", 0.001, 1.0),
     ParamSpec("input.log_file", "", "replay this CAN log (.asc, .blf, ...) instead of a bus"),
     ParamSpec("input.realtime", True, "log replay at recorded timing (false: fast)"),
+    ParamSpec("input.wait_for_subscribers", 0, "log replay starts once rig_state has this many "
+              "subscribers", "", 0, 1000),
 ]
 
 
@@ -72,38 +82,42 @@ class CanBridgeNode(Node):
         super().__init__(NAME)
         from clutch_msgs.msg import CanFrame, PressureCommand, RigState
 
-        from clutch_ros.canbus import (
-            PumpCommandGate,
-            PumpGateConfig,
-            RigDatabase,
-            RigStateAssembler,
-        )
+        from clutch_ros.canbus import PumpCommandGate, PumpGateConfig, RigDatabase
+        from clutch_ros.canbus import RigStateAssembler as Assembler
+        from clutch_ros.canbus.stats import PublishPacer
 
         cfg = self._cfg = declare_params(self, PARAMS)
         self._db = RigDatabase(cfg["bridge.dbc_file"] or None)
-        self._assembler = RigStateAssembler(
-            self._db, socketcan_error_frames=cfg["can.interface"] == "socketcan")
+        self._trigger = self._db.frame(cfg["bridge.publish_on"]).key \
+            if cfg["bridge.publish_on"] else None
+        self._assembler = Assembler(self._db, socketcan_error_frames=cfg["can.interface"]
+                                    == "socketcan")
+        rig_keys = frozenset(self._db.frame(g.message).key for g in self._assembler.groups)
         self._gate = PumpCommandGate(time.monotonic, PumpGateConfig(
             max_pressure=cfg["pump.max_pressure"], rate_limit_up=cfg["pump.rate_limit"],
             watchdog_timeout=cfg["pump.watchdog_timeout"]))
+        self._pump_key, self._foreign_requests = self._gate.codec.spec.key, 0
+        self._pacer = PublishPacer(cfg["bridge.rate"], self._trigger, rig_keys)
         self._offset = None  # epoch - bus time [s], for adapters with relative clocks
-        self._last_stamp = None
-        self._published = self._idle_warned = 0
-        self._stale_reports = 0
+        self._last_stamp = self._last_report = self._stale = None
+        self._published = self._stale_reports = 0
+        self._last_new, self._idle_warned = time.monotonic(), False
         self._rig_pub = self.create_publisher(RigState, "rig_state", sensor_qos())
         self._cmd_pub = self.create_publisher(PressureCommand, "pump_request", reliable_qos())
         self._raw_pub = (self.create_publisher(CanFrame, "can_frames", reliable_qos(1000))
                          if cfg["bridge.publish_raw"] else None)
-        self._stop = threading.Event()
-        self._bus = self._notifier = self._log_thread = None
+        self._stop, self._lock = threading.Event(), threading.Lock()
+        self._bus = self._notifier = self._log_thread = self._source = None
         if cfg["input.log_file"]:
             self._start_log(cfg["input.log_file"], cfg["input.realtime"])
         else:
-            self._start_bus()
             self.create_subscription(PressureCommand, "pressure_command", self._on_command,
                                      reliable_qos())
             self.create_timer(cfg["pump.period"], lambda: self._send(self._gate.tick()))
-            self.create_timer(1.0 / cfg["bridge.rate"], self._publish_live)
+            period = 1.0 / cfg["bridge.rate"]  # with publish_on: only flushes held frames
+            self.create_timer(period if self._trigger is None else max(period, FLUSH_PERIOD),
+                              lambda: self._publish_latest(self._pacer.flush))
+            self._start_bus()
         self._diag = Diagnostics(self, self._diagnose)
 
     # -- receive --------------------------------------------------------------------------
@@ -112,34 +126,46 @@ class CanBridgeNode(Node):
 
         from clutch_ros.canbus import BusConfig, ReconnectingBus
 
-        cfg = self._cfg
-        extra = {"port": cfg["can.port"]} if cfg["can.interface"] == "udp_multicast" else {}
-        config = BusConfig(interface=cfg["can.interface"], channel=cfg["can.channel"],
-                           bitrate=cfg["can.bitrate"] or None, fd=cfg["can.fd"] or None,
-                           receive_own_messages=cfg["can.receive_own_messages"],
-                           can_filters=[f for f in cfg["can.filters"] if f] or None,
-                           extra=extra)
+        config = BusConfig.from_params(self._cfg)
         self._bus = ReconnectingBus(config, on_event=self._on_link_event)
-        listeners = [self._assembler] + ([self._publish_raw] if self._raw_pub else [])
-        self._notifier = can.Notifier(self._bus, listeners, timeout=0.1)
+        self._notifier = can.Notifier(self._bus, [self._assembler, self._on_frame], timeout=0.1)
         self.get_logger().info(f"CAN {config.describe()} open; decoding with {self._db.path}")
 
-    def _on_link_event(self, event) -> None:
-        log = self.get_logger().info if event.new == "up" else self.get_logger().warning
-        log(f"CAN link {event.old} -> {event.new}: {event.reason}")
+    def _on_link_event(self, event) -> None:  # the bus rate-limits its own log lines
+        if event.new == "closed":
+            return
+        if event.new == "up":
+            self.get_logger().info(f"CAN link {event.old} -> up", throttle_duration_sec=10.0)
+        else:
+            self.get_logger().warning(f"CAN link {event.old} -> {event.new}: {event.reason}",
+                                      throttle_duration_sec=10.0)
+
+    def _on_frame(self, frame) -> None:
+        """Notifier thread, after the assembler: raw topic, PumpRequests of others, publish."""
+        if self._raw_pub is not None:
+            self._raw_pub.publish(can_frame_msg(frame, self._offset or 0.0))
+        if frame.is_error_frame or frame.is_remote_frame:
+            return
+        key = frame_key(frame.arbitration_id, frame.is_extended_id)
+        if key == self._pump_key:  # ours never come back (the bus removes echoes)
+            self._foreign_requests += 1
+        self._publish_latest(self._pacer.on_frame, key)
 
     def _start_log(self, path: str, realtime: bool) -> None:
         from clutch_ros.canbus import LogSource
 
-        source = LogSource(path, realtime=realtime)
+        source = self._source = LogSource(path, realtime=realtime)
         source.check()  # a bad file fails the start with a clear message
 
         def replay():
+            while self.count_subscribers("rig_state") < self._cfg["input.wait_for_subscribers"]:
+                if self._stop.wait(0.05):
+                    return
             try:
                 for sample in source.samples(self._assembler, 1.0 / self._cfg["bridge.rate"],
                                              self._stop):
-                    if self._offset is None and sample.stamp is not None:
-                        self._offset = time.time() - sample.stamp
+                    if self._offset is None and source.first_time is not None:
+                        self._offset = time.time() - source.first_time
                     self._publish(sample)
                 self.get_logger().info(f"log {path} done: {source.frames_read} frames, "
                                        f"{self._published} rig_state published")
@@ -149,51 +175,31 @@ class CanBridgeNode(Node):
         self._log_thread = threading.Thread(target=replay, name="can_log", daemon=True)
         self._log_thread.start()
 
-    def _publish_raw(self, frame) -> None:
-        from clutch_msgs.msg import CanFrame
+    def _publish_latest(self, decide, *args) -> None:
+        """Publish the latest signals if ``decide(*args, now)`` (the pacer) and they are new.
 
-        msg = CanFrame()
-        sec_to_stamp(frame.timestamp + (self._offset or 0.0), msg.header.stamp)
-        msg.id, msg.is_rtr = frame.arbitration_id, frame.is_remote_frame
-        msg.is_extended, msg.is_error = frame.is_extended_id, frame.is_error_frame
-        msg.dlc = min(frame.dlc, 255)
-        msg.data = list(bytes(frame.data[:8]).ljust(8, b"\0"))
-        self._raw_pub.publish(msg)
+        Runs on the Notifier thread (frames) and the executor (timer), hence the lock.
+        """
+        with self._lock:
+            if not decide(*args, time.monotonic()):
+                return
+            newest = self._assembler.newest_time
+            if newest is not None and self._offset is None:  # relative clocks -> the epoch
+                skew = time.time() - newest
+                self._offset = skew if abs(skew) > 3600.0 else 0.0
+            if newest is None or not self._publish(
+                    self._assembler.snapshot(time.time() - self._offset)):
+                self._pacer.refund()
 
-    def _publish_live(self) -> None:
-        newest = self._assembler.newest_time
-        if newest is None:
-            return
-        if self._offset is None:  # relative adapter clocks are mapped onto the epoch
-            skew = time.time() - newest
-            self._offset = skew if abs(skew) > 3600.0 else 0.0
-        self._publish(self._assembler.snapshot(time.time() - self._offset))
-
-    def _publish(self, sample) -> None:
-        from clutch_msgs.msg import RigState
-
+    def _publish(self, sample) -> bool:
         if sample.stamp is None or sample.stamp == self._last_stamp:
-            if self._last_stamp is not None and not self._idle_warned:
-                self._idle_warned = 1
-                self.get_logger().warning("no new rig frames; rig_state paused")
-            return
-        self._last_stamp, self._idle_warned = sample.stamp, 0
-        if sample.stale_mask:
-            self._stale_reports += 1
-        msg = RigState()
-        sec_to_stamp(sample.stamp + (self._offset or 0.0), msg.header.stamp)
-        msg.header.frame_id = "clutch"
-        for name in ("actuating_pressure", "lamella_temperature", "oil_temperature",
-                     "input_speed", "output_speed", "slip_speed", "measured_torque",
-                     "torque_request", "pump_current"):
-            setattr(msg, name, float(getattr(sample, name)))
-        msg.has_measured_torque = bool(sample.has_measured_torque
-                                       and math.isfinite(sample.measured_torque))
-        msg.ff_voltages = [float(v) for v in sample.ff_voltages]
-        msg.wheel_speeds = [float(v) for v in sample.wheel_speeds]
-        msg.stale_mask = int(sample.stale_mask)
-        self._rig_pub.publish(msg)
+            return False
+        self._last_stamp, self._last_new, self._stale = sample.stamp, time.monotonic(), \
+            sample.stale
+        self._stale_reports += bool(sample.stale_mask)
+        self._rig_pub.publish(rig_state_msg(sample, self._offset or 0.0))
         self._published += 1
+        return True
 
     # -- send -----------------------------------------------------------------------------
     def _on_command(self, msg) -> None:
@@ -205,41 +211,66 @@ class CanBridgeNode(Node):
         from clutch_ros.canbus import CanError
 
         try:
-            self._bus.send(out.frame)
+            self._bus.send(out.frame, timeout=SEND_TIMEOUT)
         except CanError as err:  # link down: the pump's own timeout takes it to 0 bar
             self.get_logger().warning(f"pump request not sent: {err}", throttle_duration_sec=5.0)
-        if command is not None or out.limited:
-            applied = PressureCommand()
-            applied.header.stamp = self.get_clock().now().to_msg()
-            applied.pressure = float(out.pressure)
-            applied.requested_torque = command.requested_torque if command else 0.0
-            applied.predicted_torque = command.predicted_torque if command else 0.0
-            applied.limited, applied.reason = bool(out.limited), out.reason
-            self._cmd_pub.publish(applied)
+        if command is None and (out.pressure, out.reason) == self._last_report:
+            return
+        self._last_report = (out.pressure, out.reason)
+        applied = PressureCommand()
+        applied.header.stamp = self.get_clock().now().to_msg()
+        applied.pressure = float(out.pressure)
+        applied.requested_torque = command.requested_torque if command else 0.0
+        applied.predicted_torque = command.predicted_torque if command else 0.0
+        applied.limited, applied.reason = bool(out.limited), out.reason
+        self._cmd_pub.publish(applied)
 
     # -- health ---------------------------------------------------------------------------
     def _diagnose(self):
-        from clutch_ros.nodes.can_diagnostics import bridge_status
-
-        return bridge_status(self._assembler, self._bus, self._gate, self._published,
-                             self._stale_reports)
+        if self._bus is not None:  # idle bus: one warning when it goes quiet, one info back
+            idle = time.monotonic() - self._last_new
+            if idle > IDLE_TIMEOUT and not self._idle_warned:
+                self._idle_warned = True
+                self.get_logger().warning(f"no new rig frames for {idle:.1f} s; rig_state "
+                                          "paused")
+            elif idle <= IDLE_TIMEOUT and self._idle_warned:
+                self._idle_warned = False
+                self.get_logger().info("rig frames again; rig_state resumed")
+        extra = {"rig_state_published": self._published, "stale_samples": self._stale_reports,
+                 "stale_groups": ", ".join(self._stale or []),
+                 "foreign_pump_requests": self._foreign_requests}
+        if self._source is not None:
+            extra.update(log_file=str(self._source.path), log_frames=self._source.frames_read,
+                         log_done=not self._log_thread.is_alive())
+        return bridge_status(self._assembler, self._bus, self._gate, self._pacer.fallback,
+                             extra)
 
     def close(self) -> None:
-        """Stop the Notifier/log thread, send a last 0 bar request and close the bus."""
+        """Stop the receive threads, send a last 0 bar request and close the bus."""
         self._stop.set()
         if self._notifier is not None:
             self._notifier.stop()
+        if self._log_thread is not None:
+            self._log_thread.join(timeout=2.0)
         if self._bus is not None:
             try:
-                self._bus.send(self._gate.submit(0.0).frame)
+                self._bus.send(self._gate.submit(0.0).frame, timeout=0.05)
             except Exception:  # noqa: BLE001 - best effort on shutdown
                 pass
             self._bus.shutdown()
 
 
 def main(args=None) -> int:
-    """Console entry point: ``ros2 run clutch_ros can_bridge``."""
-    return run_node(NAME, __doc__, PARAMS, CanBridgeNode, args)
+    """Console entry point: ``ros2 run clutch_ros can_bridge``; bad settings: one line, 2."""
+    from rclpy.exceptions import ParameterException
+
+    from clutch_ros.errors import ClutchError
+
+    try:
+        return run_node(NAME, __doc__, PARAMS, CanBridgeNode, args)
+    except (ClutchError, ParameterException) as err:
+        sys.stderr.write(f"{NAME}: error: {err}\n")
+        return 2
 
 
 if __name__ == "__main__":

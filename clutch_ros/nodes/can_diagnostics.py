@@ -1,55 +1,109 @@
-"""The can_bridge's health as one diagnostic status (level, message, key/values).
+"""Helpers of the can_bridge node: its messages and its health as a diagnostic status.
 
-Levels: ERROR when the CAN link is down; WARN when no rig frame arrived in the last period,
-required signal groups are stale, frames were dropped, decode or error frames were seen since
-the previous report, or the pump watchdog tripped; OK otherwise. Counts are totals since
-start; rates are per second since the previous report.
+:func:`rig_state_msg` and :func:`can_frame_msg` build ``RigState`` / ``CanFrame`` from a
+:class:`~clutch_ros.canbus.RigSample` / ``can.Message`` (bus time + offset -> stamp).
+
+:func:`bridge_status` returns (level, message, key/values). Levels: ERROR when the CAN
+link is down; WARN when no rig frame arrived since the previous report, required signal
+groups are stale, frames were dropped, decode or error frames were seen since the previous
+report, another node sent PumpRequest frames (the bridge's own echo is removed by the bus,
+so any PumpRequest received means a second master on the pump), or the pump watchdog
+tripped; OK otherwise. Counts are totals since start; rates are per second since the
+previous report.
 """
 
 from __future__ import annotations
 
+import math
 import time
 
-__all__ = ["bridge_status"]
+from clutch_ros.nodes.common import sec_to_stamp
+
+__all__ = ["bridge_status", "can_frame_msg", "rig_state_msg"]
+
+_FIELDS = ("actuating_pressure", "lamella_temperature", "oil_temperature", "input_speed",
+           "output_speed", "slip_speed", "measured_torque", "torque_request", "pump_current")
+
+
+def rig_state_msg(sample, offset: float = 0.0):
+    """Return a ``RigState`` of ``sample`` stamped ``sample.stamp + offset`` [s]."""
+    from clutch_msgs.msg import RigState
+
+    msg = RigState()
+    sec_to_stamp(sample.stamp + offset, msg.header.stamp)
+    msg.header.frame_id = "clutch"
+    for name in _FIELDS:
+        setattr(msg, name, float(getattr(sample, name)))
+    msg.has_measured_torque = bool(sample.has_measured_torque
+                                   and math.isfinite(sample.measured_torque))
+    msg.ff_voltages = [float(v) for v in sample.ff_voltages]
+    msg.wheel_speeds = [float(v) for v in sample.wheel_speeds]
+    msg.stale_mask = int(sample.stale_mask)
+    return msg
+
+
+def can_frame_msg(frame, offset: float = 0.0):
+    """Return a ``CanFrame`` of a python-can frame (payload cut/padded to 8 bytes)."""
+    from clutch_msgs.msg import CanFrame
+
+    msg = CanFrame()
+    sec_to_stamp(frame.timestamp + offset, msg.header.stamp)
+    msg.id, msg.is_rtr = frame.arbitration_id, frame.is_remote_frame
+    msg.is_extended, msg.is_error = frame.is_extended_id, frame.is_error_frame
+    msg.dlc = min(frame.dlc, 255)
+    msg.data = list(bytes(frame.data[:8]).ljust(8, b"\0"))
+    return msg
 
 _previous: dict[int, dict] = {}
 
 
-def bridge_status(assembler, bus, gate, published: int, stale_reports: int):
-    """Return ``(level, message, values)`` for the bridge's /diagnostics status."""
+def bridge_status(assembler, bus, gate, rig_keys, extra: dict):
+    """Return ``(level, message, values)`` for the bridge's /diagnostics status.
+
+    ``rig_keys``: frame keys of the rig's signal groups; ``extra``: node values added as
+    they are, among them ``stale_groups`` (groups stale in the last published sample) and
+    ``foreign_pump_requests`` (PumpRequest data frames received).
+    """
     c = assembler.counters()
     total_rate, per_id = assembler.rates(time.monotonic())
     prev = _previous.setdefault(id(assembler), {})
     values = {
         "frames_total": c.frames_total, "frame_rate_hz": total_rate,
+        "rig_frame_rate_hz": sum(r for k, r in per_id.items() if k in rig_keys),
         "decoded_frames": c.decoded_frames, "unknown_frames": c.unknown_frames,
         "unknown_ids": c.unknown_ids_text(), "decode_errors": c.decode_errors,
         "error_frames": c.error_frames, "bus_off_frames": c.bus_off_frames,
         "remote_frames": c.remote_frames, "fd_frames": c.fd_frames,
-        "dropped_frames": c.dropped_frames, "listener_errors": c.listener_errors,
-        "rig_state_published": published, "stale_samples": stale_reports,
-        "pump_request_pa": gate.applied_pressure, "pump_commands": gate.commands,
-        "pump_rejected_commands": gate.rejected_commands,
-        "watchdog_trips": gate.watchdog_trips,
+        "dropped_frames": c.dropped_frames, "counter_repeats": c.counter_repeats,
+        "listener_errors": c.listener_errors,
+        "pump_request_pa": gate.applied_pressure, "pump_frames": gate.frames,
+        "pump_commands": gate.commands, "pump_rejected_commands": gate.rejected_commands,
+        "watchdog_trips": gate.watchdog_trips, **extra,
     }
+    values.update({f"decode_errors_{k}": n for k, n in sorted(c.decode_errors_by_reason.items())})
     values.update({f"rate_0x{key:X}_hz": rate for key, rate in sorted(per_id.items())})
     level, problems = "OK", []
     if bus is not None:
         status = bus.status()
         values.update({"link_state": str(status.state), "link_reason": status.reason,
-                       "bus_state": status.bus_state, "reconnects": status.connects,
-                       "disconnects": status.disconnects, "send_failures": status.send_failures})
+                       "bus_state": status.bus_state, "connects": status.connects,
+                       "disconnects": status.disconnects, "send_failures": status.send_failures,
+                       "own_echoes_dropped": status.own_echoes})
         if str(status.state) != "up":
             level = "ERROR"
             problems.append(f"CAN link {status.state}: {status.reason}")
     for key, what in (("decode_errors", "decode errors"), ("error_frames", "error frames"),
-                      ("dropped_frames", "dropped frames"), ("watchdog_trips", "watchdog trips")):
+                      ("dropped_frames", "dropped frames"), ("watchdog_trips", "watchdog trips"),
+                      ("foreign_pump_requests", "PumpRequest frames from another node")):
         new = values[key] - prev.get(key, 0)
         if new > 0:
             problems.append(f"{new} new {what}")
             level = "WARN" if level == "OK" else level
         prev[key] = values[key]
-    if total_rate == 0.0 and level == "OK":
+    if extra.get("stale_groups"):
+        problems.append(f"stale: {extra['stale_groups']}")
+        level = "WARN" if level == "OK" else level
+    if values["rig_frame_rate_hz"] == 0.0 and level == "OK":
         level = "WARN"
         problems.append("no rig frames")
     return level, "; ".join(problems) or "bridging", values

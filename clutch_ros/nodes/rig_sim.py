@@ -17,6 +17,7 @@ Frames are stamped with the wall clock (like a real adapter's receive time).
 from __future__ import annotations
 
 import math
+import sys
 import threading
 import time
 
@@ -75,9 +76,7 @@ class RigSimNode(Node):
             self._scenario = scenario_from_spec(cfg["rig.scenario"], repeat=cfg["rig.repeat"])
         else:
             self._scenario = _OperatorScenario(cfg["rig.slip_speed"])
-        extra = {"port": cfg["can.port"]} if cfg["can.interface"] == "udp_multicast" else {}
-        self._bus = ReconnectingBus(BusConfig(interface=cfg["can.interface"],
-                                              channel=cfg["can.channel"], extra=extra))
+        self._bus = ReconnectingBus(BusConfig.from_params(cfg))
         self._port = RigCanPort(self._bus)
         self._sim = RigSimulator(plant, self._scenario, self._port, dt=cfg["rig.dt"],
                                  stamp_clock=time.time)
@@ -94,33 +93,39 @@ class RigSimNode(Node):
             else self._scenario.duration
         try:
             self._stats = self._sim.run(duration, realtime=True)
-            self.get_logger().info(f"scenario done: {self._stats}")
+            if not self._stats.stopped:  # (a stop comes from close(), after rclpy shut down)
+                self.get_logger().info(f"scenario done: {self._stats}")
         except Exception as err:  # noqa: BLE001 - reported, the node keeps its diagnostics
             self.get_logger().error(f"simulation stopped: {err}")
 
     def _on_set_parameters(self, params) -> SetParametersResult:
-        for p in params:
-            if p.name == "rig.slip_speed":
-                if not isinstance(self._scenario, _OperatorScenario):
-                    return SetParametersResult(successful=False, reason="rig.slip_speed is "
-                                               "only settable in operator mode")
-                self._scenario.slip_speed = float(p.value)
-            elif p.name != "use_sim_time":
+        for p in params:  # all or nothing: check every parameter before applying any
+            if p.name == "rig.slip_speed" and not isinstance(self._scenario, _OperatorScenario):
+                return SetParametersResult(successful=False, reason="rig.slip_speed is only "
+                                           "settable in operator mode")
+            if p.name not in ("rig.slip_speed", "use_sim_time"):
                 return SetParametersResult(successful=False,
                                            reason=f"{p.name} cannot change at run time")
+        for p in params:
+            if p.name == "rig.slip_speed":
+                self._scenario.slip_speed = float(p.value)
         return SetParametersResult(successful=True)
 
     def _diagnose(self):
         sim, port = self._sim, self._port
         values = {"sim_time_s": sim.time, "steps": sim.steps, "frames_sent": port.sent,
-                  "send_errors": port.send_errors, "pump_requests": port.received,
+                  "send_errors": port.send_errors, "frames_received": port.received,
+                  "pump_requests": port.received - port.other_frames,
                   "invalid_pump_requests": port.monitor.invalid,
-                  "requested_pressure_pa": port.requested_pressure(sim.time)}
+                  "requested_pressure_pa": port.requested_pressure(sim.time),
+                  "own_echoes_dropped": self._bus.own_echoes}
         if sim.signals is not None:
             values.update(actuating_pressure_pa=sim.signals.actuating_pressure,
                           true_torque_nm=sim.signals.true_torque,
                           lamella_temperature_c=sim.signals.lamella_temperature)
         if not self._thread.is_alive():
+            if self._stats is not None:
+                return "OK", f"scenario '{self._scenario.name}' done", values
             return "WARN", "simulation not running", values
         return "OK", f"running '{self._scenario.name}'", values
 
@@ -132,8 +137,16 @@ class RigSimNode(Node):
 
 
 def main(args=None) -> int:
-    """Console entry point: ``ros2 run clutch_ros rig_sim``."""
-    return run_node(NAME, __doc__, PARAMS, RigSimNode, args)
+    """Console entry point: ``ros2 run clutch_ros rig_sim``; bad settings: one line, exit 2."""
+    from rclpy.exceptions import ParameterException
+
+    from clutch_ros.errors import ClutchError
+
+    try:
+        return run_node(NAME, __doc__, PARAMS, RigSimNode, args)
+    except (ClutchError, ParameterException) as err:
+        sys.stderr.write(f"{NAME}: error: {err}\n")
+        return 2
 
 
 if __name__ == "__main__":

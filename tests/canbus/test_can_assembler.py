@@ -230,3 +230,38 @@ def test_socketcan_error_classes_and_listener_errors(db):
     assert (socketcan.counters().bus_off_frames,
             socketcan.counters().controller_overflows) == (2, 1)
     assert plain.counters().listener_errors == 1
+
+
+def test_publish_pacer_trigger_rate_cap_and_fallback():
+    from clutch_ros.canbus.stats import PublishPacer
+
+    fast, speed, temps = 0x100, 0x101, 0x110
+    pacer = PublishPacer(1000.0, speed, frozenset({fast, speed, temps}))
+    # every trigger frame at exactly the rate publishes, jitter included
+    times = [0.001 * k + (0.0003 if k % 2 else -0.0003) for k in range(1, 200)]
+    assert all(pacer.on_frame(speed, t) for t in times)
+    assert not pacer.on_frame(fast, times[-1] + 0.0001)  # others wait for the trigger
+    # faster than the rate: the average is capped (burst of 2 first)
+    pacer = PublishPacer(200.0, speed, frozenset({fast, speed}))
+    published = sum(pacer.on_frame(speed, 0.001 * k) for k in range(1000))  # 1 kHz for 1 s
+    assert 200 <= published <= 202
+    # the trigger frame goes missing: other rig frames publish at half the rate
+    pacer = PublishPacer(100.0, speed, frozenset({fast, speed}))
+    published = sum(pacer.on_frame(fast, 0.001 * k) for k in range(1000))
+    assert 45 <= published <= 51
+    assert not any(pacer.on_frame(0x7E0, 10.0 + k) for k in range(5))  # not a rig frame
+    # a trigger frame held back by the cap is flushed by the timer once the cap allows
+    pacer = PublishPacer(200.0, speed, frozenset({fast, speed}))
+    assert pacer.on_frame(speed, 0.0) and pacer.on_frame(speed, 0.0001)  # the burst
+    assert not pacer.on_frame(speed, 0.0002) and pacer.pending  # the bus then goes quiet
+    assert not pacer.flush(0.003)  # too early for the cap
+    assert pacer.flush(0.008) and not pacer.pending
+    assert not pacer.flush(1.0)  # nothing pending: the timer does not publish
+    # timer mode: frames never publish, the timer does at the rate; nothing new: refund
+    pacer = PublishPacer(10.0, None)
+    assert not pacer.on_frame(speed, 0.0)
+    assert pacer.flush(0.0) and pacer.flush(0.0) and not pacer.flush(0.0)
+    pacer.refund()
+    assert pacer.flush(0.0)
+    with pytest.raises(ValueError):
+        PublishPacer(0.0, speed)

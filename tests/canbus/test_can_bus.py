@@ -12,6 +12,7 @@ import pytest
 from clutch_ros.canbus.assembler import RigStateAssembler
 from clutch_ros.canbus.bus import (
     BusConfig,
+    EchoFilter,
     LinkState,
     ReconnectingBus,
     open_bus,
@@ -22,6 +23,7 @@ from clutch_ros.errors import ConfigError
 
 from . import flaky_bus
 from .flaky_bus import ADAPTERS, Adapter
+from .recorder import private_group
 
 
 class FakeClock:
@@ -290,3 +292,76 @@ def test_broken_event_callback_is_contained(adapter):
         adapt.plugged = False
         assert bus.recv(0) is None
         assert bus.link_state == LinkState.DOWN
+
+
+def test_echo_filter_unit():
+    clock = FakeClock()
+    echo = EchoFilter(clock, window=1.0, capacity=3)
+    a = can.Message(arbitration_id=0x80, data=b"\x01\x02")
+    b = can.Message(arbitration_id=0x80, data=b"\x01\x03")
+    assert not echo.is_echo(a)  # nothing sent yet
+    echo.sent(a)
+    echo.sent(a)
+    assert echo.is_echo(can.Message(arbitration_id=0x80, data=b"\x01\x02", timestamp=5.0))
+    assert echo.is_echo(a) and not echo.is_echo(a)  # once per copy sent
+    assert not echo.is_echo(can.Message(arbitration_id=0x80, data=b"\x01\x02",
+                                        is_extended_id=True))
+    echo.sent(b)
+    echo.unsent(b)  # the send failed: no echo will come
+    assert not echo.is_echo(b)
+    echo.sent(b)
+    clock.t += 1.5  # too old: a foreign frame that happens to be equal is not swallowed
+    assert not echo.is_echo(b)
+    for i in range(5):  # bounded memory
+        echo.sent(can.Message(arbitration_id=i))
+    assert not echo.is_echo(can.Message(arbitration_id=0))
+    assert echo.is_echo(can.Message(arbitration_id=4))
+    assert echo.echoes == 3
+
+
+def test_udp_multicast_echo_removed_and_groups_isolated():
+    """python-can's udp_multicast loops our frames back; ReconnectingBus drops exactly those."""
+    pytest.importorskip("msgpack", reason="python-can's udp_multicast needs msgpack")
+    group, port = private_group()
+    other = f"{group.rsplit('.', 1)[0]}.{(int(group.rsplit('.', 1)[1]) % 254) + 1}"
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
+    with ReconnectingBus(config) as bridge, open_bus(config) as peer, \
+            open_bus(BusConfig(interface="udp_multicast", channel=other,
+                               extra={"port": port})) as stranger:
+        mine = [can.Message(arbitration_id=0x80, data=bytes([i, 1])) for i in range(20)]
+        theirs = can.Message(arbitration_id=0x100, data=b"\x05")
+        for msg in mine:
+            bridge.send(msg)
+        peer.send(theirs)
+        got = []
+        while (msg := bridge.recv(0.3)) is not None:
+            got.append(msg)
+        assert [(m.arbitration_id, bytes(m.data)) for m in got] == [(0x100, b"\x05")]
+        assert bridge.own_echoes == 20 and bridge.status().own_echoes == 20
+        # the peer (a plain python-can bus) hears them all, and its own echo
+        heard = []
+        while (msg := peer.recv(0.3)) is not None:
+            heard.append(msg.arbitration_id)
+        assert heard.count(0x80) == 20 and heard.count(0x100) == 1
+        # same port, another group: nothing crosses (IP_MULTICAST_ALL cleared)
+        assert stranger.recv(0.3) is None
+    # receive_own_messages=False is the default: a plain BusConfig keeps the filter off
+    # for interfaces that do not echo
+    with ReconnectingBus(BusConfig(interface="virtual", channel=f"v-{uuid.uuid4().hex}")) as v:
+        v.send(can.Message(arbitration_id=1))
+        assert v.own_echoes == 0
+
+
+def test_bus_config_from_node_params():
+    config = BusConfig.from_params({"can.interface": "udp_multicast", "can.channel": "239.1.2.3",
+                                    "can.port": 40000, "can.bitrate": 0, "can.fd": False,
+                                    "can.receive_own_messages": False, "can.filters": [""]})
+    assert config.kwargs() == {"interface": "udp_multicast", "channel": "239.1.2.3",
+                               "receive_own_messages": False, "port": 40000}
+    config = BusConfig.from_params({"can.interface": "socketcan", "can.channel": "can0",
+                                    "can.port": 40000, "can.bitrate": 500000, "can.fd": True,
+                                    "can.filters": ["0x100:0x7F0", ""]})
+    assert config.bitrate == 500000 and config.fd and config.extra == {}
+    assert config.can_filters == ({"can_id": 0x100, "can_mask": 0x7F0},)
+    with pytest.raises(BusConfigError, match="CAN filter"):
+        BusConfig.from_params({"can.interface": "virtual", "can.filters": ["0x100"]})

@@ -1,0 +1,143 @@
+"""python-can ``udp_multicast`` specifics: the echo of our own frames and socket tuning.
+
+python-can's ``udp_multicast`` interface (the bus between processes on one machine) differs
+from a CAN adapter in two ways that matter to a node:
+
+* it loops every frame a bus sends back to that bus (the socket joins the group it sends
+  to), although it rejects ``receive_own_messages``: :class:`EchoFilter` recognises those
+  echoes, and :class:`~clutch_ros.canbus.bus.ReconnectingBus` removes them;
+* on Linux a socket bound to the port hears every group joined on that port, and its default
+  receive buffer holds only ~20 ms of traffic at 10,000 frames/s: :func:`tune_udp_multicast`
+  (applied by :func:`~clutch_ros.canbus.bus.open_bus`) fixes both.
+"""
+
+from __future__ import annotations
+
+import socket
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+
+import can
+
+__all__ = ["ECHOING_INTERFACES", "UDP_RECEIVE_BUFFER", "EchoFilter", "tune_udp_multicast"]
+
+#: Receive buffer [bytes] requested for udp_multicast sockets (capped by net.core.rmem_max).
+UDP_RECEIVE_BUFFER = 4 * 1024 * 1024
+_IP_MULTICAST_ALL = getattr(socket, "IP_MULTICAST_ALL", 49)  # linux/in.h
+_IPV6_MULTICAST_ALL = getattr(socket, "IPV6_MULTICAST_ALL", 29)  # linux/in6.h
+#: Interfaces that deliver a node's own frames back to it even without receive_own_messages.
+ECHOING_INTERFACES = frozenset({"udp_multicast"})
+
+
+def tune_udp_multicast(bus: can.BusABC, receive_buffer: int = UDP_RECEIVE_BUFFER) -> bool:
+    """Tune a python-can ``udp_multicast`` bus's socket (Linux); True when fully done.
+
+    * Group isolation: Linux delivers every multicast datagram for a port to every socket
+      bound to that port whose host joined the group (``IP_MULTICAST_ALL`` defaults to 1), so
+      two buses on different groups but the same port hear each other. Clearing the option
+      restores the isolation the group is meant to give.
+    * Receive buffer: the default (``net.core.rmem_default``, ~208 KiB) holds only a few
+      hundred frames, ~20 ms at 10,000 frames/s, so a short stall of the receiving process
+      loses frames. ``receive_buffer`` [bytes] is requested (the kernel caps it at
+      ``net.core.rmem_max``).
+
+    Best effort: False on other systems or when the python-can internals differ.
+    """
+    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
+    if sock is None or not sys.platform.startswith("linux"):
+        return False
+    if sock.family == socket.AF_INET6:
+        level, option = socket.IPPROTO_IPV6, _IPV6_MULTICAST_ALL
+    else:
+        level, option = socket.IPPROTO_IP, _IP_MULTICAST_ALL
+    try:
+        sock.setsockopt(level, option, 0)
+        if receive_buffer:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer)
+    except OSError:
+        return False
+    return True
+
+def _signature(msg: can.Message) -> tuple:
+    return (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.is_error_frame,
+            msg.is_fd, bytes(msg.data))
+
+
+class EchoFilter:
+    """Recognise the echoes of frames this node sent (thread-safe).
+
+    :meth:`sent` records a frame before it is sent (:meth:`unsent` takes it back when the
+    send fails); :meth:`is_echo` returns True -- once per recorded copy -- for a received
+    frame equal to one sent within ``window`` [s] (identifier, flags and payload; the
+    timestamp is the receiver's). At most ``capacity`` frames are remembered, so an
+    interface that stops echoing costs bounded memory. ``clock`` returns seconds.
+    """
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic, window: float = 1.0,
+                 capacity: int = 4096) -> None:
+        self._clock = clock
+        self._window = window
+        self._capacity = capacity
+        self._lock = threading.Lock()
+        self._order: deque[tuple[float, tuple]] = deque()
+        self._pending: dict[tuple, int] = {}
+        #: echoes recognised and removed
+        self.echoes = 0
+
+    def _expire(self, now: float) -> None:
+        order, pending = self._order, self._pending
+        while order and (now - order[0][0] > self._window or len(order) > self._capacity):
+            _, sig = order.popleft()
+            left = pending.get(sig, 0) - 1
+            if left > 0:
+                pending[sig] = left
+            else:
+                pending.pop(sig, None)
+
+    def sent(self, msg: can.Message) -> None:
+        """Record ``msg`` as about to be sent."""
+        sig = _signature(msg)
+        with self._lock:
+            now = self._clock()
+            self._order.append((now, sig))
+            self._pending[sig] = self._pending.get(sig, 0) + 1
+            self._expire(now)
+
+    def unsent(self, msg: can.Message) -> None:
+        """Forget the most recent record of ``msg`` (its send failed)."""
+        sig = _signature(msg)
+        with self._lock:
+            for i in range(len(self._order) - 1, -1, -1):
+                if self._order[i][1] == sig:
+                    del self._order[i]
+                    left = self._pending.get(sig, 0) - 1
+                    if left > 0:
+                        self._pending[sig] = left
+                    else:
+                        self._pending.pop(sig, None)
+                    return
+
+    def is_echo(self, msg: can.Message) -> bool:
+        """Return True (and forget one record) when ``msg`` is the echo of a sent frame."""
+        if not self._pending:
+            return False
+        sig = _signature(msg)
+        with self._lock:
+            self._expire(self._clock())
+            count = self._pending.get(sig, 0)
+            if count == 0:
+                return False
+            for i, (_, recorded) in enumerate(self._order):
+                if recorded == sig:
+                    del self._order[i]
+                    break
+            if count > 1:
+                self._pending[sig] = count - 1
+            else:
+                del self._pending[sig]
+            self.echoes += 1
+            return True
+

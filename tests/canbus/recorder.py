@@ -1,0 +1,81 @@
+"""Test helpers for buses shared with node processes: a private udp_multicast group, a recorder.
+
+Every test gets its own random multicast group *and* port: on Linux a socket bound to a port
+receives every group joined on that port by anyone unless it clears ``IP_MULTICAST_ALL``
+(:func:`clutch_ros.canbus.bus.tune_udp_multicast` does; a foreign tool may not).
+"""
+
+from __future__ import annotations
+
+import random
+import threading
+import time
+
+import can
+
+from clutch_ros.canbus.bus import BusConfig, open_bus
+
+
+def private_group() -> tuple[str, int]:
+    """Return a random (multicast group, UDP port) for one test."""
+    rng = random.SystemRandom()
+    group = f"239.{rng.randint(1, 254)}.{rng.randint(1, 254)}.{rng.randint(1, 254)}"
+    return group, rng.randint(20000, 60000)
+
+
+def bus_params(group: str, port: int) -> dict:
+    """Node parameters selecting that group."""
+    return {"can.interface": "udp_multicast", "can.channel": group, "can.port": port}
+
+
+class BusRecorder:
+    """Receive every frame of a udp_multicast group on a thread (``frames``: can.Message).
+
+    The frames' timestamps are the kernel receive times, which are the same for every socket
+    on the host, so they equal the bus timestamps a node on the same group sees.
+    """
+
+    def __init__(self, group: str, port: int) -> None:
+        self.bus = open_bus(BusConfig(interface="udp_multicast", channel=group, fd=True,
+                                      extra={"port": port}))
+        self.frames: list[can.Message] = []
+        self._by_id: dict[int, list[can.Message]] = {}  # 11-bit data frames by identifier
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            msg = self.bus.recv(0.05)
+            if msg is not None:
+                self.frames.append(msg)
+                if not (msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id):
+                    self._by_id.setdefault(msg.arbitration_id, []).append(msg)
+
+    def of(self, arbitration_id: int) -> list[can.Message]:
+        """Return the data frames recorded so far with this (11-bit) identifier."""
+        return list(self._by_id.get(arbitration_id, ()))
+
+    def count(self, arbitration_id: int) -> int:
+        """Return how many data frames with this (11-bit) identifier were recorded."""
+        return len(self._by_id.get(arbitration_id, ()))
+
+    def wait_for(self, condition, timeout: float, what: str) -> None:
+        """Wait until ``condition()``; raise AssertionError after ``timeout`` [s]."""
+        end = time.monotonic() + timeout
+        while not condition():
+            if time.monotonic() > end:
+                raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        """Stop recording and close the bus."""
+        self._stop.set()
+        self._thread.join(2.0)
+        self.bus.shutdown()
+
+    def __enter__(self) -> BusRecorder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
