@@ -29,7 +29,7 @@ from pathlib import Path
 
 from clutch_ros.errors import ClutchError
 
-__all__ = ["add_parser", "run", "main", "load_runs", "standalone"]
+__all__ = ["add_parser", "run", "main", "load_runs", "flexiforce_pressures", "standalone"]
 
 LAWS = ("none", "ff_t", "ff_v", "coulomb")
 
@@ -80,11 +80,6 @@ def load_runs(bags, piston_area: float, *, pdiff: bool = True,
     import numpy as np
 
     from clutch_ros.bag.reader import read_rig_states
-    from clutch_ros.model.calibration import (
-        CalibrationError,
-        compare_methods,
-        quasi_static_mask,
-    )
     from clutch_ros.model.identification import FitRun
 
     arrays = []
@@ -93,44 +88,68 @@ def load_runs(bags, piston_area: float, *, pdiff: bool = True,
         if len(rig) == 0:
             raise ClutchError(f"{bag}: no RigState messages")
         arrays.append((Path(bag), rig))
-    info: dict = {"calibration": None, "comparison": None, "calibration_error": None}
-    voltages = []
-    if pdiff:
-        for _, rig in arrays:
-            v = _voltages(rig)
-            voltages.append(v)
-        if all(v is None for v in voltages):
-            info["calibration_error"] = "no FlexiForce voltages in the bags"
-        else:
-            widths = {v.shape[1] for v in voltages if v is not None}
-            try:
-                if len(widths) != 1:
-                    raise CalibrationError(f"the bags have different sensor counts {widths}")
-                vs, forces, masks = [], [], []
-                for (_, rig), v in zip(arrays, voltages):
-                    if v is None:
-                        continue
-                    vs.append(v)
-                    forces.append(rig.actuating_pressure * piston_area)
-                    masks.append(quasi_static_mask(rig.time, rig.actuating_pressure))
-                comparison = compare_methods(np.concatenate(vs), np.concatenate(forces),
-                                             piston_area, np.concatenate(masks))
-                info["comparison"] = comparison
-                info["calibration"] = getattr(comparison, calibration)
-            except CalibrationError as err:
-                info["calibration_error"] = str(err)
+    pressures, info = flexiforce_pressures([rig for _, rig in arrays], piston_area,
+                                           calibration=calibration, enabled=pdiff)
     runs = []
-    for i, (bag, rig) in enumerate(arrays):
+    for (bag, rig), discs in zip(arrays, pressures):
         measured = np.where(rig.has_measured_torque.astype(bool), rig.measured_torque, np.nan)
-        front = rear = None
-        cal = info["calibration"]
-        if cal is not None and voltages[i] is not None:
-            est = cal.pressures(voltages[i], piston_area)
-            front, rear = est.front, est.rear
+        front, rear = discs if discs is not None else (None, None)
         runs.append(FitRun(rig.time, rig.actuating_pressure, rig.lamella_temperature,
                            rig.slip_speed, measured, name=bag.name, front_pressure=front,
                            rear_pressure=rear))
     return runs, info
+
+
+def flexiforce_pressures(rigs, piston_area: float, *, calibration: str = "same_force",
+                         enabled: bool = True):
+    """Front/rear lamella pressures [Pa] from the FlexiForce voltages of RigState arrays.
+
+    The sensors are calibrated on the runs themselves (thesis §5.5: both methods fitted
+    against F_act = p·A on the quasi-static samples of every run with voltages, ``calibration``
+    selecting the one used). Returns ``(pressures, info)``: per run ``(front, rear)`` arrays
+    (n,) or None (no voltages, no calibration), and ``info`` as :func:`load_runs` describes.
+    """
+    import numpy as np
+
+    from clutch_ros.model.calibration import (
+        CalibrationError,
+        compare_methods,
+        quasi_static_mask,
+    )
+
+    info: dict = {"calibration": None, "comparison": None, "calibration_error": None}
+    if not enabled:
+        return [None] * len(rigs), info
+    voltages = [_voltages(rig) for rig in rigs]
+    if all(v is None for v in voltages):
+        info["calibration_error"] = "no FlexiForce voltages in the bags"
+        return [None] * len(rigs), info
+    widths = {v.shape[1] for v in voltages if v is not None}
+    try:
+        if len(widths) != 1:
+            raise CalibrationError(f"the bags have different sensor counts {widths}")
+        vs, forces, masks = [], [], []
+        for rig, v in zip(rigs, voltages):
+            if v is None:
+                continue
+            vs.append(v)
+            forces.append(rig.actuating_pressure * piston_area)
+            masks.append(quasi_static_mask(rig.time, rig.actuating_pressure))
+        comparison = compare_methods(np.concatenate(vs), np.concatenate(forces),
+                                     piston_area, np.concatenate(masks))
+        info["comparison"] = comparison
+        info["calibration"] = getattr(comparison, calibration)
+    except CalibrationError as err:
+        info["calibration_error"] = str(err)
+        return [None] * len(rigs), info
+    pressures = []
+    for v in voltages:
+        if v is None:
+            pressures.append(None)
+        else:
+            est = info["calibration"].pressures(v, piston_area)
+            pressures.append((est.front, est.rear))
+    return pressures, info
 
 
 def _voltages(rig):

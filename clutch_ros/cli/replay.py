@@ -8,7 +8,10 @@ model's torque RMSE against the measured torque, the Eq. 1 reference RMSE with t
 friction law, the fraction of samples with accuracy in [0.9, 1.1] where the torque is above
 5 % of its maximum, and the accuracy extremes. ``-o`` writes one ClutchEstimate per accepted
 input sample (header = input header, as the node publishes it) on ``/clutch_estimate``;
-``--report`` writes PNG plots. The work is done by :mod:`clutch_ros.bag.replay`.
+``--report DIR`` writes PNG plots, among them the thesis's validation views (RMSE per
+sequence, torque accuracy over time, P_diff vs the spline force, the residual
+cross-correlation of Eq. 3; :mod:`clutch_ros.cli.replay_report`), listed per bag under
+``plots`` in the JSON. The work is done by :mod:`clutch_ros.bag.replay`.
 """
 
 from __future__ import annotations
@@ -34,7 +37,10 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--output", metavar="OUT", help="write ClutchEstimate bag(s) here "
                    "(a directory of bags for several inputs)")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
-    p.add_argument("--report", metavar="DIR", help="write PNG plots into DIR")
+    p.add_argument("--report", metavar="DIR",
+                   help="write PNG plots into DIR: per bag the replay and the validation views "
+                        "(accuracy, P_diff vs spline force, residual cross-correlation), and the "
+                        "RMSE per sequence")
     p.add_argument("--json", action="store_true", help="print a JSON list, one object per bag")
     p.set_defaults(func=run)
 
@@ -62,6 +68,11 @@ def run(args) -> int:
     for out in outs:  # fail before any work, not after the first bag
         if out is not None and out.exists():
             raise ClutchError(f"{out}: output exists already; bags are never overwritten")
+    report = None
+    if args.report:
+        from clutch_ros.cli.replay_report import ReplayReport
+
+        report = ReplayReport(Path(args.report), params, params.spline.law)
     results = []
     for bag, out in zip(bags, outs):
         start = time.perf_counter()
@@ -72,18 +83,12 @@ def run(args) -> int:
         if out is not None:
             summary["estimates_written"] = write_estimates(out, result, storage=args.storage)
             summary["output"] = str(out)
-        if args.report:
-            from clutch_ros.cli.replay_report import plot_replay
-
-            summary["plots"] = [str(p) for p in
-                                plot_replay(bag, result.rig, result.batch, Path(args.report))]
+        if report is not None:
+            summary["plots"] = report.add(result)
         results.append(summary)
-    if args.report and len(results) > 1:
-        from clutch_ros.cli.replay_report import plot_summary
-
-        overview = str(plot_summary(results, Path(args.report)))
-        for summary in results:
-            summary["plots"].append(overview)
+        del result  # the report keeps what it needs; the next bag may be large
+    if report is not None:
+        report.finish(results)
     if args.json:
         from clutch_ros.cli import emit_json
 
@@ -95,6 +100,9 @@ def run(args) -> int:
                 f"RMSE {r['rmse_nm']:.2f} N m (reference {r['reference_rmse_nm']:.2f} N m), "
                 f"within ±10 % {100 * r['within_10pct']:.1f} %, accuracy "
                 f"{r['min_accuracy']:.3f}..{r['max_accuracy']:.3f}\n")
+        if report is not None:
+            plots = {p for r in results for p in r["plots"]}
+            sys.stdout.write(f"report: {len(plots)} PNG files in {args.report}\n")
     return 0
 
 

@@ -1,16 +1,109 @@
-"""PNG report of replayed bags: per bag curves and RMSE bars, per sequence an overview.
+"""PNG report of replayed bags (``clutch replay --report DIR``).
 
-Like the thesis's Figs. 55-57: measured vs modelled vs reference (Eq. 1) torque, the torque
-accuracy of model and reference with the ±10 % band, the modelled P_diff, and the RMSE of
-model and reference side by side (:func:`plot_replay`); and, per bag (sequence), the RMSE and
-the share of samples within ±10 % of reference and model (:func:`plot_summary`).
+:class:`ReplayReport` collects the replayed bags and writes, into ``DIR``:
+
+- per bag ``<bag>_replay.png`` (:func:`plot_replay`): measured vs modelled vs reference
+  (Eq. 1) torque, the torque accuracy of model and reference with the ±10 % band, the
+  modelled P_diff, and the RMSE of model and reference side by side;
+- with several bags ``replay_summary.png`` (:func:`plot_summary`): per bag (sequence) the
+  RMSE and the share of samples within ±10 % of reference and model;
+- the thesis's validation views (:mod:`clutch_ros.cli.validation_report`):
+  ``validation_rmse.png`` (Fig. 57, RMSE per sequence, reference vs model) and per bag
+  ``validation_accuracy_<bag>.png`` (Figs. 55-56), ``validation_pdiff_<bag>.png`` (Fig. 54:
+  measured P_diff, the model's P_diff and its spline force) and ``validation_xcorr_<bag>.png``
+  (the residual cross-correlation of Eq. 3 with its 99 % band).
+
+The measured P_diff comes from the bags' FlexiForce voltages, calibrated on the replayed bags
+themselves like ``clutch fit`` does (:func:`clutch_ros.cli.fit.flexiforce_pressures`,
+"same force" method, thesis §5.5); bags without voltages show the modelled curves only.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["plot_replay", "plot_summary"]
+__all__ = ["ReplayReport", "plot_replay", "plot_summary"]
+
+
+class ReplayReport:
+    """Collect replayed bags (:meth:`add`), then write the overview views (:meth:`finish`).
+
+    Args:
+        out_dir: report directory (created).
+        params: the replay's ``ClutchParams`` (piston area for the pressure equivalents).
+        label: model label in legends and the summary (e.g. the spline law).
+
+    Only what the views need is kept per bag (the evaluation's arrays, the FlexiForce
+    voltages), not the whole replay.
+    """
+
+    def __init__(self, out_dir: Path, params, label: str):
+        self.out_dir = Path(out_dir)
+        self.params = params
+        self.label = label
+        self._runs: list = []  # (evaluation, accepted mask, voltage view)
+
+    def add(self, result) -> list[str]:
+        """Plot one ``ReplayResult`` (``<bag>_replay.png``); return the paths written."""
+        from types import SimpleNamespace
+
+        import numpy as np
+
+        from clutch_ros.cli.validation_report import evaluation_from_batch
+
+        rig, batch = result.rig, result.batch
+        paths = plot_replay(result.bag, rig, batch, self.out_dir)
+        names = {ev.name for ev, _, _ in self._runs}
+        name = Path(result.bag).name or "bag"
+        if name in names:  # two bags of the same folder name: keep their files apart
+            name = f"{name}_{len(self._runs)}"
+        ev = evaluation_from_batch(name, rig.time, batch)
+        ff = rig.columns.get("ff_voltages")
+        volts = SimpleNamespace(  # what flexiforce_pressures reads of a RigStateArrays
+            time=rig.time, actuating_pressure=rig.actuating_pressure, ff_voltages=ff,
+            columns={k: v for k, v in rig.columns.items() if k == "ff_voltages.len"})
+        self._runs.append((ev, np.asarray(batch.accepted, dtype=bool), volts))
+        return [str(p) for p in paths]
+
+    def finish(self, summaries: list[dict]) -> list[str]:
+        """Write the overview and validation views; extend each bag's summary.
+
+        ``summaries``: the bags' summaries in :meth:`add` order; each gains the paths of its
+        views in ``plots`` and a ``validation`` object (``xcorr_outside``: fraction of lags
+        outside the band per model, ``measured_pdiff``: calibration method or None,
+        ``calibration_error``). Returns every path written here.
+        """
+        from dataclasses import replace
+
+        from clutch_ros.cli.fit import flexiforce_pressures
+        from clutch_ros.cli.validation_report import write_report
+
+        written = []
+        if len(summaries) > 1:
+            overview = str(plot_summary(summaries, self.out_dir))
+            written.append(overview)
+            for summary in summaries:
+                summary["plots"].append(overview)
+        area = self.params.pack.piston_area
+        discs, info = flexiforce_pressures([v for _, _, v in self._runs], area)
+        evaluations = []
+        for (ev, ok, _), pressures in zip(self._runs, discs):
+            if pressures is not None:
+                ev = replace(ev, measured_pdiff=(pressures[0] - pressures[1])[ok])
+            evaluations.append(ev)
+        paths, report = write_report({self.label: evaluations}, self.out_dir, area=area)
+        written += [str(p) for p in paths]
+        cal = info["calibration"]
+        for summary, ev in zip(summaries, evaluations):
+            summary["plots"] += [str(report["rmse_file"])] + [str(p) for p in
+                                                             report["files"][ev.name]]
+            summary["validation"] = {
+                "xcorr_outside": report["xcorr_outside"][ev.name],
+                "measured_pdiff": (cal.method if cal is not None
+                                   and ev.measured_pdiff is not None else None),
+                "calibration_error": info["calibration_error"],
+            }
+        return written
 
 
 def plot_replay(bag: Path, rig, batch, out_dir: Path) -> list[Path]:

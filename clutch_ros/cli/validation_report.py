@@ -20,7 +20,7 @@ written into ``out_dir`` (``<prefix>_*.png``):
   input-dependent dynamics the model misses.
 
 :func:`write_report` returns the written paths and a summary dict (RMSE table, the fraction of
-lags outside the band per model and run).
+lags outside the band per model and run, the files written per run).
 """
 
 from __future__ import annotations
@@ -89,6 +89,10 @@ def write_report(models: Mapping[str, Sequence], out_dir, prefix: str = "validat
                  area: float | None = None) -> tuple[list[Path], dict]:
     """Write the four views (module docstring); return (paths, summary).
 
+    ``summary``: ``rmse`` (:func:`rmse_table`), ``xcorr_outside`` (run -> row title ->
+    fraction of lags outside the band), ``rmse_file`` (the Fig. 57 PNG) and ``files`` (run ->
+    its accuracy, P_diff and cross-correlation PNGs).
+
     ``models``: label -> list of RunEvaluation (same run names for every label); ``area``:
     piston area [m²] for the spline-force pressure equivalent (default: 3.75e-3, the rig's).
     """
@@ -105,7 +109,7 @@ def write_report(models: Mapping[str, Sequence], out_dir, prefix: str = "validat
     names = [ev.name for ev in models[labels[0]]]
     area = 3.75e-3 if area is None else float(area)
     paths: list[Path] = []
-    summary = {"rmse": rmse_table(models), "xcorr_outside": {}}
+    summary = {"rmse": rmse_table(models), "xcorr_outside": {}, "files": {}}
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
 
     # Fig. 57: RMSE per sequence
@@ -127,6 +131,7 @@ def write_report(models: Mapping[str, Sequence], out_dir, prefix: str = "validat
     ax.legend(fontsize=7)
     fig.tight_layout()
     paths.append(_save(fig, out / f"{prefix}_rmse.png"))
+    summary["rmse_file"] = paths[-1]
 
     for i, name in enumerate(names):
         evs = [(label, models[label][i]) for label in labels if i < len(models[label])]
@@ -143,32 +148,33 @@ def write_report(models: Mapping[str, Sequence], out_dir, prefix: str = "validat
         for ax, (title, t, mod) in zip(axes, rows):
             with np.errstate(divide="ignore", invalid="ignore"):
                 acc = np.where(big & (np.abs(mod) > 1.0), meas / mod, np.nan)
-            ax.axhspan(0.9, 1.1, color="tab:green", alpha=0.15)
-            ax.plot(t, acc, lw=0.8)
+            ax.axhspan(0.9, 1.1, color="tab:green", alpha=0.15, label="±10 % band")
+            ax.plot(t, acc, lw=0.8, label="measured / modelled torque")
             ax.set_ylim(0.6, 1.4)
-            ax.set_ylabel("accuracy")
+            ax.set_ylabel("accuracy [-]")
             ax.set_title(title, fontsize=9)
+        axes[0].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0))
         axes[-1].set_xlabel("time [s]")
         fig.suptitle(f"{name}: torque accuracy (thesis Figs. 55-56)")
         fig.tight_layout()
         paths.append(_save(fig, out / f"{prefix}_accuracy_{safe}.png"))
 
         # Fig. 54: P_diff vs the spline force
-        fig, axes = plt.subplots(len(evs), 1, figsize=(10, 2.4 * len(evs)), sharex=True,
+        fig, axes = plt.subplots(len(evs), 1, figsize=(10, 2.4 * len(evs) + 0.8), sharex=True,
                                  squeeze=False)
         for ax, (label, ev) in zip(axes[:, 0], evs):
             if ev.measured_pdiff is not None:
                 ax.plot(ev.t, ev.measured_pdiff / 1e5, color="tab:gray", lw=0.7,
-                        label="P_diff measured (FlexiForce)")
+                        label="P_diff measured\n(FlexiForce, calibrated\nagainst F_act)")
             ax.plot(ev.t, ev.pressure_difference / 1e5, color="tab:red", lw=0.9,
                     label="P_diff model")
             spline = np.asarray(ev.spline_force)
             if spline.ndim == 2 and spline.size:
                 ax.plot(ev.t, np.nansum(spline, axis=1) / area / 1e5, color="tab:blue",
                         lw=0.9, ls="--", label="spline force sum / A")
-            ax.set_ylabel("[bar]")
+            ax.set_ylabel("pressure [bar]")
             ax.set_title(f"model {label}", fontsize=9)
-            ax.legend(fontsize=7, loc="upper right")
+            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0))
         axes[-1, 0].set_xlabel("time [s]")
         fig.suptitle(f"{name}: P_diff and the spline force (thesis Fig. 54)")
         fig.tight_layout()
@@ -197,6 +203,7 @@ def write_report(models: Mapping[str, Sequence], out_dir, prefix: str = "validat
         fig.tight_layout()
         paths.append(_save(fig, out / f"{prefix}_xcorr_{safe}.png"))
         summary["xcorr_outside"][name] = outside
+        summary["files"][name] = paths[-3:]
     return paths, summary
 
 

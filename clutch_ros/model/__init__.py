@@ -44,6 +44,16 @@ from clutch_ros.model.errors import (
     UnreachableTorqueError,
 )
 from clutch_ros.model.estimator import ClutchEstimator, Estimate, EstimateBatch, estimate_batch
+from clutch_ros.model.fit_data import (
+    SAMPLE_BUDGET,
+    FitOptions,
+    FitRun,
+    IdentificationError,
+    NoExcitationError,
+    NoMeasuredTorqueError,
+    TooShortError,
+    UnidentifiableParameterError,
+)
 from clutch_ros.model.friction import (
     friction_coefficient,
     reference_torque,
@@ -52,16 +62,8 @@ from clutch_ros.model.friction import (
 )
 from clutch_ros.model.identification import (
     FREE_PARAMETERS,
-    SAMPLE_BUDGET,
-    FitOptions,
     FitResult,
-    FitRun,
-    IdentificationError,
-    NoExcitationError,
-    NoMeasuredTorqueError,
     RunEvaluation,
-    TooShortError,
-    UnidentifiableParameterError,
     evaluate,
     fit,
     initial_params,

@@ -6,7 +6,8 @@ bag replayed at any speed gives the same estimates. Samples that are NaN/inf, ou
 duplicated or older than ``estimator.max_sample_age`` are skipped, counted and reported on
 ``/diagnostics``; a NaN torque is never published. Model parameters are the DESIGN.md keys
 (``clutch.*``, ``friction.*``, ``spline.*``, ``slip.*``); runtime changes are validated by the
-model and rejected with its reason, and applied without losing the pack state.
+model and rejected with its reason (their ranges are the model's, stated in the descriptors'
+``additional_constraints``), and applied without losing the pack state.
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ class EstimatorNode(Node):
 
         self._cfg = declare_params(self, PARAMS)
         self._params = declare_model_params(self, DEFAULT_ESTIMATOR_PRESET)
+        _model_checks_ranges(self, self._params.to_flat())
         self._estimator = ClutchEstimator(self._params,
                                           max_gap_s=self._cfg["estimator.max_gap"])
         self._skipped: dict[str, int] = {}
@@ -121,10 +123,9 @@ class EstimatorNode(Node):
         changes = {p.name: p.value for p in params}
         own = {k: v for k, v in changes.items() if k.startswith("estimator.")}
         model = {k: v for k, v in changes.items() if k not in own}
-        if model:
-            current = {s.name: self.get_parameter(s.name).value for s in model_param_specs()}
+        if model:  # validated against the complete current set (required keys included)
             try:
-                new_params = validated_params(current, model)
+                new_params = validated_params(self._params.to_flat(), model)
             except ClutchError as err:
                 return SetParametersResult(successful=False, reason=str(err))
             self._estimator.set_params(new_params)
@@ -150,6 +151,26 @@ class EstimatorNode(Node):
         if self._skipped:
             return "OK", f"running; skipped {sum(self._skipped.values())} samples", values
         return "OK", "running", values
+
+
+def _model_checks_ranges(node, keys) -> None:
+    """Move the ROS ranges of the model ``keys`` into their descriptors' constraint text.
+
+    rclpy checks a descriptor's range before the set-parameters callback, so a NaN or
+    out-of-range value would be refused with rclpy's message; without it the model refuses
+    it with its own reason (same bounds, plus exclusive minima, finiteness, cross-key rules).
+    """
+    from clutch_ros.model import PARAMETER_SPECS
+
+    for key in keys:
+        spec, descriptor = PARAMETER_SPECS[key], node.describe_parameter(key)
+        if spec.kind != "str" and (descriptor.floating_point_range or descriptor.integer_range):
+            low = ("" if spec.minimum is None
+                   else f"{'>' if spec.min_exclusive else '>='} {spec.minimum}, ")
+            high = "" if spec.maximum is None else f"<= {spec.maximum} "
+            descriptor.additional_constraints = f"finite, {low}{high}(checked by the model)"
+            descriptor.floating_point_range, descriptor.integer_range = [], []
+            node.set_descriptor(key, descriptor)
 
 
 def _msg_type():

@@ -1,10 +1,12 @@
 """``clutch replay``: JSON summary, ClutchEstimate output, PNG report, law switch, bad inputs.
 
-The input is a short simulated rig run (Table 3 sequence 3, 100 Hz) written as a RigState bag
-with two bad samples injected (a NaN pressure and a repeated stamp). The replay output is
-checked against the model's per-sample estimator (``ClutchEstimator.update`` in a loop, as
-the live node runs it). Bad inputs run the real command in a subprocess: one error line,
-exit code 2, no traceback.
+The input is a short simulated rig run (Table 3 sequence 3, 100 Hz, FlexiForce voltages)
+written as a RigState bag with two bad samples injected (a NaN pressure and a repeated
+stamp). The replay output is checked against the model's per-sample estimator
+(``ClutchEstimator.update`` in a loop, as the live node runs it). ``--report`` writes the
+replay plot and the thesis's validation views (valid PNGs, listed in the JSON summary); the
+measured P_diff needs an incremented-step bag to calibrate the FlexiForce sensors on. Bad
+inputs run the real command in a subprocess: one error line, exit code 2, no traceback.
 """
 
 import json
@@ -120,13 +122,64 @@ def test_output_one_estimate_per_accepted_sample_with_input_stamps(run_bag, caps
         assert qos.reliability.name == "RELIABLE"
 
 
+PNG = b"\x89PNG\r\n\x1a\n"
+VIEWS = ("accuracy", "pdiff", "xcorr")  # per bag: Figs. 55-56, Fig. 54, Eq. 3
+
+
+def _assert_png(path, min_size=5_000):
+    data = open(path, "rb").read()
+    assert data[:8] == PNG, path
+    assert len(data) > min_size, (path, len(data))  # curves, not an empty canvas
+
+
 def test_report_writes_png(run_bag, capsys, tmp_path):
     bag, _ = run_bag
-    (r,) = replay(capsys, bag, "--params", "flexiforce_8", "--report", tmp_path / "rep")
-    (png,) = r["plots"]
-    data = open(png, "rb").read()
-    assert png.endswith("seq3_replay.png") and data[:8] == b"\x89PNG\r\n\x1a\n"
-    assert len(data) > 20_000  # four panels of curves, not an empty canvas
+    rep = tmp_path / "rep"
+    (r,) = replay(capsys, bag, "--params", "flexiforce_8", "--report", rep)
+    plots = r["plots"]
+    assert plots[0].endswith("seq3_replay.png")
+    _assert_png(plots[0], 20_000)  # four panels of curves
+    # the thesis's validation views, listed in the summary and written
+    want = {"validation_rmse.png"} | {f"validation_{v}_seq3.png" for v in VIEWS}
+    assert {p.split("/")[-1] for p in plots[1:]} == want
+    assert sorted(p.name for p in rep.iterdir()) == sorted(["seq3_replay.png", *want])
+    for png in plots:
+        _assert_png(png)
+    val = r["validation"]
+    assert set(val["xcorr_outside"]) == {"reference (Eq. 1)", "model ff_t"}
+    assert all(0.0 <= x <= 1.0 for x in val["xcorr_outside"].values())
+    # a ramp alone has no quasi-static samples to calibrate the FlexiForce sensors on
+    assert val["measured_pdiff"] is None and "usable samples" in val["calibration_error"]
+    # text mode says where the report went
+    assert clutch_main(["replay", str(bag), "--params", "flexiforce_8", "--report",
+                        str(tmp_path / "rep2")]) == 0  # fmt: skip
+    assert f"report: 5 PNG files in {tmp_path / 'rep2'}" in capsys.readouterr().out
+
+
+@pytest.fixture(scope="module")
+def inc_step_bag(tmp_path_factory):
+    """Write the incremented-step run (Table 3 sequence 2, 100 Hz) with FlexiForce voltages."""
+    bag = tmp_path_factory.mktemp("inc") / "seq2"
+    write_run(bag, simulate_run(table3_run(2, 10.0), seed=8, rate_hz=100.0))
+    return bag
+
+
+def test_report_measured_pdiff_from_flexiforce(run_bag, inc_step_bag, capsys, tmp_path):
+    """Sensors calibrated on the replayed bags (the step run's plateaus) give P_diff."""
+    bag, _ = run_bag
+    rep = tmp_path / "rep"
+    results = replay(capsys, bag, inc_step_bag, "--params", "flexiforce_8", "--law", "coulomb",
+                     "--report", rep)  # fmt: skip
+    for r, name in zip(results, ("seq3", "seq2")):
+        assert r["validation"]["measured_pdiff"] == "same_force", r["validation"]
+        assert r["validation"]["calibration_error"] is None
+        names = {p.split("/")[-1] for p in r["plots"]}
+        assert {f"{name}_replay.png", "replay_summary.png", "validation_rmse.png"} <= names
+        assert {f"validation_{v}_{name}.png" for v in VIEWS} <= names
+        assert set(r["validation"]["xcorr_outside"]) == {"reference (Eq. 1)", "model coulomb"}
+        for png in r["plots"]:
+            _assert_png(png)
+    assert len(list(rep.iterdir())) == 2 + 1 + 1 + 2 * len(VIEWS)
 
 
 @pytest.mark.parametrize("law", ["ff_v", "ff_t", "none", "coulomb"])
