@@ -173,18 +173,21 @@ class LogSource:
         """
         if not (math.isfinite(period) and period > 0.0):
             raise ValueError(f"period must be > 0 s, got {period!r}")
-        next_t: float | None = None
+        # Grid point k is t0 + k * period, computed (not accumulated), so frames exactly on
+        # a grid point never drift to the other side of it over a long log.
+        t0: float | None = None
+        k = 1
         for msg in self.frames(stop):
             stamp = msg.timestamp
-            if next_t is None:
-                next_t = stamp + period
-            elif stamp >= next_t:
-                if stamp - next_t > max_gap:
-                    yield assembler.snapshot(next_t)
-                    next_t += period * math.floor((stamp - next_t) / period)
-                while stamp >= next_t:
-                    yield assembler.snapshot(next_t)
-                    next_t += period
+            if t0 is None:
+                t0 = stamp
+            elif stamp >= t0 + k * period:
+                if stamp - (t0 + k * period) > max_gap:
+                    yield assembler.snapshot(t0 + k * period)
+                    k += math.floor((stamp - (t0 + k * period)) / period)
+                while stamp >= t0 + k * period:
+                    yield assembler.snapshot(t0 + k * period)
+                    k += 1
             assembler.feed(msg)
         if self.last_time is not None:
             yield assembler.snapshot(self.last_time)

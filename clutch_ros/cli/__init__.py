@@ -16,7 +16,7 @@ import sys
 
 from clutch_ros.errors import ClutchError
 
-__all__ = ["main", "build_parser"]
+__all__ = ["build_parser", "dispatch", "emit_json", "main", "standalone"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,10 +48,8 @@ def _clean(obj):
     return obj
 
 
-def main(argv=None) -> int:
-    """Run ``clutch`` with ``argv`` (default: sys.argv[1:]); return the exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def dispatch(args) -> int:
+    """Run the parsed subcommand ``args.func`` with the CLI's error handling."""
     try:
         return int(args.func(args) or 0)
     except ClutchError as err:
@@ -67,3 +65,16 @@ def main(argv=None) -> int:
             raise
         sys.stderr.write(f"clutch {args.command}: error: {err}\n")
         return 2
+
+
+def standalone(module, command: str, argv=None) -> int:
+    """Run one subcommand ``module`` as ``clutch COMMAND`` (``python -m clutch_ros.cli.X``)."""
+    parser = argparse.ArgumentParser(prog="clutch")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    module.add_parser(sub)
+    return dispatch(parser.parse_args([command, *(sys.argv[1:] if argv is None else argv)]))
+
+
+def main(argv=None) -> int:
+    """Run ``clutch`` with ``argv`` (default: sys.argv[1:]); return the exit code."""
+    return dispatch(build_parser().parse_args(argv))

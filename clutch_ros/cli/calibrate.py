@@ -90,7 +90,7 @@ def run(args) -> int:
 
 def main(argv=None) -> int:
     """``python -m clutch_ros.cli.calibrate BAG...`` (same as ``clutch calibrate``)."""
-    from clutch_ros.cli.fit import standalone
+    from clutch_ros.cli import standalone
 
     return standalone(sys.modules[__name__], "calibrate", argv)
 

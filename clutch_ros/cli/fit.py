@@ -21,15 +21,13 @@ exit code 2; ``--fix KEY`` keeps a parameter at its base value.
 
 from __future__ import annotations
 
-import argparse
 import datetime
-import os
 import sys
 from pathlib import Path
 
 from clutch_ros.errors import ClutchError
 
-__all__ = ["add_parser", "run", "main", "load_runs", "flexiforce_pressures", "standalone"]
+__all__ = ["add_parser", "run", "main", "load_runs", "flexiforce_pressures"]
 
 LAWS = ("none", "ff_t", "ff_v", "coulomb")
 
@@ -234,28 +232,10 @@ def _comparison_brief(comparison) -> dict:
     return {k: v for k, v in doc.items() if k not in ("same_force", "same_sensor")}
 
 
-def standalone(module, command: str, argv=None) -> int:
-    """Run one subcommand ``module`` as ``clutch COMMAND`` with the CLI's error handling."""
-    parser = argparse.ArgumentParser(prog="clutch")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    module.add_parser(sub)
-    args = parser.parse_args([command, *(sys.argv[1:] if argv is None else argv)])
-    try:
-        return int(args.func(args) or 0)
-    except ClutchError as err:
-        if os.environ.get("CLUTCH_DEBUG"):
-            raise
-        sys.stderr.write(f"clutch {command}: error: {err}\n")
-        return 2
-    except OSError as err:
-        if os.environ.get("CLUTCH_DEBUG"):
-            raise
-        sys.stderr.write(f"clutch {command}: error: {err}\n")
-        return 2
-
-
 def main(argv=None) -> int:
     """``python -m clutch_ros.cli.fit BAG... --law LAW -o PARAMS`` (same as ``clutch fit``)."""
+    from clutch_ros.cli import standalone
+
     return standalone(sys.modules[__name__], "fit", argv)
 
 

@@ -25,14 +25,13 @@ are shifted so that the log's first frame is stamped with the start time.
 
 from __future__ import annotations
 
-import sys
 import threading
 import time
 
 from rclpy.node import Node
 
 from clutch_ros.canbus.dbc import frame_key
-from clutch_ros.nodes.can_diagnostics import bridge_status, can_frame_msg, rig_state_msg
+from clutch_ros.nodes.can_diagnostics import bridge_status
 from clutch_ros.nodes.common import (
     Diagnostics,
     ParamSpec,
@@ -41,6 +40,7 @@ from clutch_ros.nodes.common import (
     run_node,
     sensor_qos,
 )
+from clutch_ros.nodes.convert import can_frame_msg, rig_state_msg
 
 NAME = "can_bridge"
 IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning
@@ -261,16 +261,8 @@ class CanBridgeNode(Node):
 
 
 def main(args=None) -> int:
-    """Console entry point: ``ros2 run clutch_ros can_bridge``; bad settings: one line, 2."""
-    from rclpy.exceptions import ParameterException
-
-    from clutch_ros.errors import ClutchError
-
-    try:
-        return run_node(NAME, __doc__, PARAMS, CanBridgeNode, args)
-    except (ClutchError, ParameterException) as err:
-        sys.stderr.write(f"{NAME}: error: {err}\n")
-        return 2
+    """Console entry point: ``ros2 run clutch_ros can_bridge``; bad settings: one line, exit 2."""
+    return run_node(NAME, __doc__, PARAMS, CanBridgeNode, args)
 
 
 if __name__ == "__main__":

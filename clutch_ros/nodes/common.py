@@ -215,14 +215,21 @@ def _fmt(value) -> str:
 
 def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[[], object],
              args: Sequence[str] | None = None) -> int:
-    """Answer --help, or init rclpy, build the node with ``factory`` and spin until shutdown."""
+    """Answer --help, or init rclpy, build the node with ``factory`` and spin until shutdown.
+
+    Bad settings (a ClutchError or rclpy ParameterException while building the node) print
+    one line ``<name>: error: ...`` and return 2, never a traceback.
+    """
     argv = list(sys.argv[1:] if args is None else args)
     if help_requested(argv):
         sys.stdout.write(format_help(name, doc, specs))
         return 0
     executor_kind, argv = _executor_option(argv)
     import rclpy
+    from rclpy.exceptions import ParameterException
     from rclpy.executors import ExternalShutdownException
+
+    from clutch_ros.errors import ClutchError
 
     # rclpy's own handlers (SignalHandlerOptions.ALL, the default) turn SIGINT and SIGTERM
     # into a clean shutdown even while the executor waits in C; a Python-level handler would
@@ -236,6 +243,11 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except (ClutchError, ParameterException, ValueError) as err:
+        if node is not None:  # an error after start-up is a bug: show it
+            raise
+        sys.stderr.write(f"{name}: error: {err}\n")
+        return 2
     finally:
         if node is not None:
             close = getattr(node, "close", None)

@@ -95,7 +95,25 @@ class ControllerNode(Node):
         self.create_subscription(ClutchEstimate, "clutch_estimate", self._on_estimate,
                                  reliable_qos(depth=2))
         self.create_timer(self._ctl.settings.period, self._tick)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
+
+    def _on_set_parameters(self, params):
+        """Apply model-key changes (validated by the model); controller.* need a restart."""
+        from rcl_interfaces.msg import SetParametersResult
+
+        from clutch_ros.nodes.model_params import apply_model_changes
+
+        fixed = [p.name for p in params if p.name.startswith("controller.")]
+        if fixed:
+            return SetParametersResult(successful=False, reason=f"{', '.join(fixed)}: "
+                                       "controller settings apply at start; restart the node")
+        new_params, reason = apply_model_changes(self._ctl.params, params)
+        if reason:
+            return SetParametersResult(successful=False, reason=reason)
+        if new_params is not None:
+            self._ctl.params = new_params
+        return SetParametersResult(successful=True)
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9

@@ -1,10 +1,12 @@
-"""Conversions between model-core results and rclpy messages (no logic, just fields)."""
+"""Conversions to rclpy messages: model estimates, CAN rig samples and raw frames."""
 
 from __future__ import annotations
 
 import math
 
-__all__ = ["estimate_to_msg"]
+from clutch_ros.nodes.common import sec_to_stamp
+
+__all__ = ["can_frame_msg", "estimate_to_msg", "rig_state_msg"]
 
 
 def estimate_to_msg(est, header, msg_type):
@@ -28,4 +30,38 @@ def estimate_to_msg(est, header, msg_type):
     msg.spline_law = str(est.spline_law)
     msg.overshoot = bool(est.overshoot)
     msg.undershoot = bool(est.undershoot)
+    return msg
+
+
+_FIELDS = ("actuating_pressure", "lamella_temperature", "oil_temperature", "input_speed",
+           "output_speed", "slip_speed", "measured_torque", "torque_request", "pump_current")
+
+
+def rig_state_msg(sample, offset: float = 0.0):
+    """Return a ``RigState`` of ``sample`` stamped ``sample.stamp + offset`` [s]."""
+    from clutch_msgs.msg import RigState
+
+    msg = RigState()
+    sec_to_stamp(sample.stamp + offset, msg.header.stamp)
+    msg.header.frame_id = "clutch"
+    for name in _FIELDS:
+        setattr(msg, name, float(getattr(sample, name)))
+    msg.has_measured_torque = bool(sample.has_measured_torque
+                                   and math.isfinite(sample.measured_torque))
+    msg.ff_voltages = [float(v) for v in sample.ff_voltages]
+    msg.wheel_speeds = [float(v) for v in sample.wheel_speeds]
+    msg.stale_mask = int(sample.stale_mask)
+    return msg
+
+
+def can_frame_msg(frame, offset: float = 0.0):
+    """Return a ``CanFrame`` of a python-can frame (payload cut/padded to 8 bytes)."""
+    from clutch_msgs.msg import CanFrame
+
+    msg = CanFrame()
+    sec_to_stamp(frame.timestamp + offset, msg.header.stamp)
+    msg.id, msg.is_rtr = frame.arbitration_id, frame.is_remote_frame
+    msg.is_extended, msg.is_error = frame.is_extended_id, frame.is_error_frame
+    msg.dlc = min(frame.dlc, 255)
+    msg.data = list(bytes(frame.data[:8]).ljust(8, b"\0"))
     return msg

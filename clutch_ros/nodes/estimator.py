@@ -51,7 +51,6 @@ class EstimatorNode(Node):
 
         self._cfg = declare_params(self, PARAMS)
         self._params = declare_model_params(self, DEFAULT_ESTIMATOR_PRESET)
-        _model_checks_ranges(self, self._params.to_flat())
         self._estimator = ClutchEstimator(self._params,
                                           max_gap_s=self._cfg["estimator.max_gap"])
         self._skipped: dict[str, int] = {}
@@ -117,19 +116,16 @@ class EstimatorNode(Node):
                                   throttle_duration_sec=5.0)
 
     def _on_set_parameters(self, params) -> SetParametersResult:
-        from clutch_ros.errors import ClutchError
-        from clutch_ros.nodes.model_params import validated_params
+        from clutch_ros.nodes.model_params import apply_model_changes
 
-        changes = {p.name: p.value for p in params}
-        own = {k: v for k, v in changes.items() if k.startswith("estimator.")}
-        model = {k: v for k, v in changes.items() if k not in own}
-        if model:  # validated against the complete current set (required keys included)
-            try:
-                new_params = validated_params(self._params.to_flat(), model)
-            except ClutchError as err:
-                return SetParametersResult(successful=False, reason=str(err))
+        # Validated against the complete current set (required keys included).
+        new_params, reason = apply_model_changes(self._params, params)
+        if reason:
+            return SetParametersResult(successful=False, reason=reason)
+        if new_params is not None:
             self._estimator.set_params(new_params)
             self._params = new_params
+        own = {p.name: p.value for p in params if p.name.startswith("estimator.")}
         self._cfg.update(own)
         if "estimator.max_gap" in own:
             self._estimator.max_gap_s = own["estimator.max_gap"]
@@ -151,26 +147,6 @@ class EstimatorNode(Node):
         if self._skipped:
             return "OK", f"running; skipped {sum(self._skipped.values())} samples", values
         return "OK", "running", values
-
-
-def _model_checks_ranges(node, keys) -> None:
-    """Move the ROS ranges of the model ``keys`` into their descriptors' constraint text.
-
-    rclpy checks a descriptor's range before the set-parameters callback, so a NaN or
-    out-of-range value would be refused with rclpy's message; without it the model refuses
-    it with its own reason (same bounds, plus exclusive minima, finiteness, cross-key rules).
-    """
-    from clutch_ros.model import PARAMETER_SPECS
-
-    for key in keys:
-        spec, descriptor = PARAMETER_SPECS[key], node.describe_parameter(key)
-        if spec.kind != "str" and (descriptor.floating_point_range or descriptor.integer_range):
-            low = ("" if spec.minimum is None
-                   else f"{'>' if spec.min_exclusive else '>='} {spec.minimum}, ")
-            high = "" if spec.maximum is None else f"<= {spec.maximum} "
-            descriptor.additional_constraints = f"finite, {low}{high}(checked by the model)"
-            descriptor.floating_point_range, descriptor.integer_range = [], []
-            node.set_descriptor(key, descriptor)
 
 
 def _msg_type():

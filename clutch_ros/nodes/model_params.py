@@ -10,7 +10,8 @@ from __future__ import annotations
 
 from clutch_ros.nodes.common import ParamSpec, declare_params
 
-__all__ = ["model_param_specs", "declare_model_params", "validated_params"]
+__all__ = ["model_param_specs", "declare_model_params", "validated_params",
+           "apply_model_changes"]
 
 
 def _attr(spec, *names, default=None):
@@ -54,7 +55,49 @@ def declare_model_params(node, preset_path: str | None = None):
 
     defaults = load_flat(preset_path) if preset_path else {}
     values = declare_params(node, model_param_specs(defaults=defaults))
-    return validated_params(values)
+    params = validated_params(values)
+    _model_checks_ranges(node, params.to_flat())
+    return params
+
+
+def _model_checks_ranges(node, keys) -> None:
+    """Move the ROS ranges of the model ``keys`` into their descriptors' constraint text.
+
+    rclpy checks a descriptor's range before the set-parameters callback, so a NaN or
+    out-of-range value would be refused with rclpy's message; without it the model refuses
+    it with its own reason (same bounds, plus exclusive minima, finiteness, cross-key rules).
+    Values from the parameter file at start-up were range-checked by rclpy already.
+    """
+    from clutch_ros.model import PARAMETER_SPECS
+
+    for key in keys:
+        spec, descriptor = PARAMETER_SPECS[key], node.describe_parameter(key)
+        if spec.kind != "str" and (descriptor.floating_point_range or descriptor.integer_range):
+            low = ("" if spec.minimum is None
+                   else f"{'>' if spec.min_exclusive else '>='} {spec.minimum}, ")
+            high = "" if spec.maximum is None else f"<= {spec.maximum} "
+            descriptor.additional_constraints = f"finite, {low}{high}(checked by the model)"
+            descriptor.floating_point_range, descriptor.integer_range = [], []
+            node.set_descriptor(key, descriptor)
+
+
+def apply_model_changes(current, parameters):
+    """Validate the model keys among ``parameters`` (rclpy Parameters) against ``current``.
+
+    Returns ``(new ClutchParams or None when no model key changed, reason)``; ``reason`` is
+    empty on success and the model's message when the change is refused.
+    """
+    from clutch_ros.errors import ClutchError
+    from clutch_ros.model import NAMESPACES
+
+    changes = {p.name: p.value for p in parameters
+               if p.name.split(".", 1)[0] in NAMESPACES}
+    if not changes:
+        return None, ""
+    try:
+        return validated_params(current.to_flat(), changes), ""
+    except ClutchError as err:
+        return None, str(err)
 
 
 def validated_params(flat: dict, changes: dict | None = None):

@@ -17,7 +17,6 @@ Frames are stamped with the wall clock (like a real adapter's receive time).
 from __future__ import annotations
 
 import math
-import sys
 import threading
 import time
 
@@ -138,15 +137,7 @@ class RigSimNode(Node):
 
 def main(args=None) -> int:
     """Console entry point: ``ros2 run clutch_ros rig_sim``; bad settings: one line, exit 2."""
-    from rclpy.exceptions import ParameterException
-
-    from clutch_ros.errors import ClutchError
-
-    try:
-        return run_node(NAME, __doc__, PARAMS, RigSimNode, args)
-    except (ClutchError, ParameterException) as err:
-        sys.stderr.write(f"{NAME}: error: {err}\n")
-        return 2
+    return run_node(NAME, __doc__, PARAMS, RigSimNode, args)
 
 
 if __name__ == "__main__":
