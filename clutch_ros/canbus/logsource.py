@@ -173,14 +173,17 @@ class LogSource:
         """
         if not (math.isfinite(period) and period > 0.0):
             raise ValueError(f"period must be > 0 s, got {period!r}")
-        # Grid point k is t0 + k * period, computed (not accumulated), so frames exactly on
-        # a grid point never drift to the other side of it over a long log.
+        # Grid point k is t0 + k * period, computed (not accumulated), and a frame within
+        # ``eps`` before a grid point counts as on it: logs store times to 1 us or 10 ns, so
+        # frames sent exactly on the grid must not fall on either side of it by rounding
+        # (that would give two samples with the same newest frame, then none).
+        eps = min(1e-6, 1e-3 * period)
         t0: float | None = None
         k = 1
         for msg in self.frames(stop):
-            stamp = msg.timestamp
+            stamp = msg.timestamp + eps
             if t0 is None:
-                t0 = stamp
+                t0 = msg.timestamp
             elif stamp >= t0 + k * period:
                 if stamp - (t0 + k * period) > max_gap:
                     yield assembler.snapshot(t0 + k * period)

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import importlib
 import json
-import sys
 import threading
 import time
 
@@ -205,19 +204,13 @@ def main(args=None) -> int:
     Returns 0 after a complete playback, 1 when playback stopped on an error, 2 when the bag
     cannot be opened or the parameters are invalid (one error line, no traceback).
     """
-    from clutch_ros.errors import ClutchError
-
     nodes: list[BagPlayerNode] = []
 
     def factory() -> BagPlayerNode:
         nodes.append(BagPlayerNode())
         return nodes[-1]
 
-    try:
-        code = run_node(NAME, __doc__, PARAMS, factory, args)
-    except (ClutchError, ValueError) as err:
-        sys.stderr.write(f"[ERROR] [{NAME}]: cannot play: {err}\n")
-        return 2
+    code = run_node(NAME, __doc__, PARAMS, factory, args)  # bad bag/params: one line, 2
     return 1 if nodes and nodes[0].error else code
 
 

@@ -224,7 +224,7 @@ def test_unknown_topic_truncated_and_corrupt_bags(bag, ros_env, tmp_path):
     logs = [p.log_path.read_text() for p in procs]
     assert all("Traceback" not in log for log in logs), logs
     assert codes[0] == 2 and "player.topics: nope not in" in logs[0], logs[0]
-    assert codes[1] == 2 and "cannot play:" in logs[1] and "run.mcap" in logs[1], logs[1]
+    assert codes[1] == 2 and "bag_player: error:" in logs[1] and "run.mcap" in logs[1], logs[1]
     assert codes[2] == 1, logs[2]
     (line,) = [x for x in logs[2].splitlines() if "playback stopped:" in x]
     assert "corrupt.mcap: message 51 on /rig_state" in line and "cannot be decoded" in line
