@@ -59,8 +59,13 @@ vpy="$venv/bin/python"
 req_hash="$(hash_of "$root/requirements.txt")"
 if [ "$(cat "$stamps/requirements" 2>/dev/null)" != "$req_hash" ]; then
     say "installing pinned requirements (first run takes about a minute)"
-    "$vpy" -m pip install --disable-pip-version-check -q -r "$root/requirements.txt" \
-        || die "pip could not install requirements.txt (is the package index reachable?)"
+    mkdir -p "$venv/build"
+    if ! "$vpy" -m pip install --disable-pip-version-check -q -r "$root/requirements.txt" \
+            > "$venv/build/pip.log" 2>&1; then
+        grep -v "is ignored: it is neither a file nor a directory" "$venv/build/pip.log" \
+            | tail -n 20 >&2
+        die "pip could not install requirements.txt (is the package index reachable?); log: $venv/build/pip.log"
+    fi
     rm -f "$stamps/cmake_paths" "$stamps/msg_defs"
     echo "$req_hash" > "$stamps/requirements"
 fi
