@@ -258,6 +258,7 @@ class CoulombLaw(SplineLaw):
         entry.coulomb_h = h
         entry.coulomb_hdiag = np.diag(h).copy()
         entry.coulomb_sets = {}
+        entry.coulomb_blocks = {}
 
     def bind(self, work, layout):
         """Also keep the index of F_act and the [1, a] mixing vector."""
@@ -322,6 +323,36 @@ class CoulombLaw(SplineLaw):
         if len(entry.coulomb_sets) < 64:
             entry.coulomb_sets[key] = mats
         return mats
+
+    def block_kernel(self, entry):
+        """Step map and checks of the current active set at ``entry`` (for batch runs).
+
+        Returns ``(Z, P_c, Q_c, P_f, Q_f)`` on the work vector ``r = [w, F_f]`` (w = work
+        head): while the set holds, the state after the step is ``Z[:nx] r + a Z[nx:] r``
+        (the forces are folded in, so ``F_f`` in ``r`` is ignored), the set's conditions
+        (:meth:`_set_matrices`) are ``P_c w + a Q_c w`` and the forces ``P_f w + a Q_f w``.
+        """
+        key = (self._stuck.tobytes(), self._sigma.tobytes())
+        kern = entry.coulomb_blocks.get(key)
+        if kern is not None:
+            return kern
+        zmat = self._set_matrices(entry, self._stuck, self._sigma)[0]
+        n = self.lamella_count
+        lay = entry.layout
+        half = zmat.shape[0] // 2
+        n_cond = half - n
+        p_part, q_part = zmat[:half], zmat[half:]
+        m = entry.M
+        nx, head = lay.n_state, lay.head
+        gamma_f = m[:, lay.forces]
+        z = np.zeros((2 * nx, lay.size))
+        z[:nx, :head] = m[:, :head] + gamma_f @ p_part[n_cond:]
+        z[nx:, :head] = gamma_f @ q_part[n_cond:]
+        kern = (z, p_part[:n_cond].copy(), q_part[:n_cond].copy(), p_part[n_cond:].copy(),
+                q_part[n_cond:].copy())
+        if len(entry.coulomb_blocks) < 64:
+            entry.coulomb_blocks[key] = kern
+        return kern
 
     def apply(self, entry, torque, mu_load):
         """Solve the stick/slip step; write F_f (module docstring)."""

@@ -14,7 +14,7 @@ from clutch_ros.model import (
     PackModel,
     simulate,
 )
-from clutch_ros.model.sequences import concatenate, pbd_sequence, ramp_sequence
+from clutch_ros.model.sequences import concatenate, pbd_sequence, ramp_sequence, table3
 
 FIELDS = ("torque", "reference_torque", "mu", "normal_force", "spline_force", "front_pressure",
           "rear_pressure", "pressure_difference", "compression")
@@ -80,3 +80,31 @@ def test_model_reuse_keeps_cache(flexiforce):
     assert len(model._cache) == 1
     b = simulate(flexiforce, t, 30e5, 1.0, 35.0, model=model)
     assert_allclose(a.torque, b.torque, rtol=0, atol=0)  # reset each time: same result
+
+
+@pytest.mark.parametrize("law", ["ff_v", "coulomb"])
+@pytest.mark.parametrize("slip", [10.0, -10.0])
+def test_batch_kernels_equal_step_loop_on_table3(flexiforce, truth, law, slip):
+    """Uniform 1 ms Table 3 (step, incremented step, 4 s ramp): the batch paths equal step().
+
+    ff_v writes its rows in place; coulomb advances blocks of an unchanged sliding set and
+    checks them per block. Both equal step() to 1e-9 and leave the model in the same state.
+    """
+    params = (truth if law == "coulomb" else flexiforce).with_law(law)
+    seq = concatenate(table3(slip, 1e-3)[:3])
+    t, p, w, temp = seq.t, seq.actuating_pressure, seq.slip_speed, seq.lamella_temperature
+    batch = PackModel(params)
+    res = simulate(params, t, p, w, temp, model=batch)
+    model = PackModel(params)
+    model.reset(p[0], temp[0], w[0])
+    samples = [model.output(p[0], w[0], temp[0])]
+    samples += [model.step(t[k] - t[k - 1], p[k], w[k], temp[k]) for k in range(1, t.size)]
+    for name in FIELDS:
+        loop = np.array([getattr(s, name) for s in samples])
+        scale = max(np.abs(loop).max(), 1e-300)
+        assert_allclose(getattr(res, name), loop, rtol=0, atol=1e-9 * scale, err_msg=name)
+    end, ref = batch.state, model.state
+    assert_allclose(end.work, ref.work, rtol=1e-9, atol=1e-9 * np.abs(ref.work).max())
+    if law == "coulomb":
+        assert np.array_equal(end.warm[0], ref.warm[0])
+        assert np.array_equal(end.warm[1], ref.warm[1])
