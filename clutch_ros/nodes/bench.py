@@ -11,11 +11,10 @@ For each it measures, with a publisher process (``bench pub``) feeding the node 
 and this process receiving its output in a thread of its own (so the probe is never the
 bottleneck; its overhead is in every row alike):
 
-* throughput: a flood of ``--flood`` RigState messages published as fast as possible (sensor
-  QoS, as on the rig); outputs per second between the first and last output, and the
-  fraction delivered;
-* latency at 1 kHz for ``--seconds``: output receive time minus the input's publish time
-  (carried in its header stamp), median and p99 [ms], and outputs per second.
+* for each input rate of ``--rates`` (``--seconds`` each, sensor-data QoS as on the rig): the
+  fraction of inputs that came out, and the latency (output receive time minus the input's
+  publish time, carried in its header stamp), median and p99 [ms];
+* the sustained rate: the highest input rate with >= 99 % of the inputs out.
 
 Targets (issue 5): the estimator sustains >= 2 kHz and reaches >= 70 % of the echo node's
 throughput. Figures vary with machine load; run it on a quiet machine.
@@ -57,13 +56,13 @@ def _echo_main() -> int:
 
 
 def _pub_main(argv: list[str]) -> int:
-    """Publish at 1 kHz for ``seconds`` (frame_id "rate"), then a flood ("flood")."""
+    """Publish ``seconds`` at each rate of a comma-separated list (frame_id = the rate)."""
     import rclpy
     from clutch_msgs.msg import RigState
 
     from clutch_ros.nodes.common import sensor_qos
 
-    seconds, flood = float(argv[0]), int(argv[1])
+    seconds, rates = float(argv[0]), [float(r) for r in argv[1].split(",")]
     rclpy.init(args=[sys.argv[0], *argv[2:]])
     node = rclpy.create_node(f"bench_pub_{os.getpid()}")
     pub = node.create_publisher(RigState, "rig_state", sensor_qos())
@@ -84,22 +83,21 @@ def _pub_main(argv: list[str]) -> int:
     while time.monotonic() < end:  # warm-up: discovery of the output side settles
         send("warmup")
         time.sleep(0.01)
-    start = time.monotonic()
-    for i in range(int(seconds * 1000)):
-        while (wait := start + i * 1e-3 - time.monotonic()) > 0:
-            if wait > 2e-4:
-                time.sleep(wait - 1e-4)
-        send("rate")
-    time.sleep(1.0)
-    for _ in range(flood):
-        send("flood")
-    time.sleep(1.0)
+    for rate in rates:  # frame_id names the step: "1000", "2000", ...
+        start, period = time.monotonic(), 1.0 / rate
+        for i in range(int(seconds * rate)):
+            while (wait := start + i * period - time.monotonic()) > 0:
+                if wait > 2e-4:
+                    time.sleep(wait - 1e-4)
+            send(f"{rate:.0f}")
+        time.sleep(1.0)
     node.destroy_node()
     rclpy.try_shutdown()
     return 0
 
 
-def _measure(cmd: list[str], out_topic: str, out_type, flood: int, seconds: float) -> dict:
+def _measure(cmd: list[str], out_topic: str, out_type, rates: list[float],
+             seconds: float) -> dict:
     import rclpy
     from clutch_msgs.msg import RigState
     from rclpy.executors import SingleThreadedExecutor
@@ -109,7 +107,7 @@ def _measure(cmd: list[str], out_topic: str, out_type, flood: int, seconds: floa
     domain = str(random.randint(150, 230))
     os.environ.update(ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    received: dict[str, list[tuple[float, float]]] = {"rate": [], "flood": [], "warmup": []}
+    received: dict[str, list[tuple[float, float]]] = {"warmup": []}
 
     def on_output(msg) -> None:
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
@@ -128,9 +126,9 @@ def _measure(cmd: list[str], out_topic: str, out_type, flood: int, seconds: floa
     under_test = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL,
                                   stderr=subprocess.DEVNULL)
     publisher = subprocess.Popen([sys.executable, "-m", "clutch_ros.nodes.bench", PUB,
-                                  str(seconds), str(flood)], env=env)
+                                  str(seconds), ",".join(f"{r:.0f}" for r in rates)], env=env)
     try:
-        publisher.wait(timeout=120 + seconds + flood / 1000)
+        publisher.wait(timeout=120 + (seconds + 1.0) * len(rates))
         time.sleep(1.0)
     finally:
         for proc in (publisher, under_test):
@@ -144,14 +142,15 @@ def _measure(cmd: list[str], out_topic: str, out_type, flood: int, seconds: floa
         rclpy.try_shutdown()
     if not received["warmup"]:
         raise RuntimeError(f"no output from {' '.join(cmd)}")
-    lat = np.array([r - s for r, s in received["rate"]]) * 1e3
-    times = np.array([r for r, _ in received["flood"]])
-    span = times[-1] - times[0] if len(times) > 1 else float("nan")
-    return {"throughput_hz": (len(times) - 1) / span if span > 0 else float("nan"),
-            "delivered": len(times) / flood,
-            "lat_median_ms": float(np.median(lat)) if lat.size else float("nan"),
-            "lat_p99_ms": float(np.percentile(lat, 99)) if lat.size else float("nan"),
-            "rate_at_1khz_hz": len(lat) / seconds}
+    steps = {}
+    for rate in rates:
+        got = received.get(f"{rate:.0f}", [])
+        lat = np.array([r - s for r, s in got]) * 1e3
+        steps[rate] = {"delivered": len(got) / (seconds * rate),
+                       "lat_median_ms": float(np.median(lat)) if lat.size else float("nan"),
+                       "lat_p99_ms": float(np.percentile(lat, 99)) if lat.size else float("nan")}
+    lossless = [r for r in rates if steps[r]["delivered"] >= 0.99]
+    return {"steps": steps, "sustained_hz": max(lossless) if lossless else 0.0}
 
 
 def main(argv=None) -> int:
@@ -161,8 +160,9 @@ def main(argv=None) -> int:
     if argv is None and len(sys.argv) > 1 and sys.argv[1] == PUB:
         return _pub_main(sys.argv[2:])
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--flood", type=int, default=20000, help="messages in the flood")
-    parser.add_argument("--seconds", type=float, default=5.0, help="1 kHz latency run [s]")
+    parser.add_argument("--rates", default="1000,2000,2500,3000,3500,4000",
+                        help="input rates to step through [Hz], comma separated")
+    parser.add_argument("--seconds", type=float, default=3.0, help="time at each rate [s]")
     args = parser.parse_args(argv)
     from clutch_msgs.msg import ClutchEstimate, RigState
 
@@ -180,19 +180,24 @@ def main(argv=None) -> int:
         ("estimator (EventsExecutor)", [py, *est, "--executor", "events", *est_args],
          "clutch_estimate", ClutchEstimate),
     ]
+    rates = [float(r) for r in args.rates.split(",")]
     results = {}
-    print(f"{'node':38s} {'flood out/s':>12s} {'delivered':>9s} {'1 kHz out/s':>11s} "
-          f"{'median ms':>9s} {'p99 ms':>8s}")
+    print(f"{'node':38s} {'sustained':>10s}  per input rate: delivered, median/p99 latency [ms]")
     for name, cmd, topic, typ in rows:
-        r = _measure(cmd, topic, typ, args.flood, args.seconds)
+        try:
+            r = _measure(cmd, topic, typ, rates, args.seconds)
+        except RuntimeError as err:
+            print(f"{name:38s} {'failed':>10s}  {err}", flush=True)
+            continue
         results[name] = r
-        print(f"{name:38s} {r['throughput_hz']:12.0f} {r['delivered']:9.3f} "
-              f"{r['rate_at_1khz_hz']:11.0f} {r['lat_median_ms']:9.3f} {r['lat_p99_ms']:8.3f}",
-              flush=True)
-    echo = results[rows[0][0]]["throughput_hz"]
-    for name, _, _, _ in rows[1:]:
-        print(f"{name}: {results[name]['throughput_hz'] / echo:.2f} of the echo node's "
-              "throughput")
+        cells = "; ".join(f"{rate:.0f} Hz: {v['delivered']:.3f}, {v['lat_median_ms']:.2f}/"
+                          f"{v['lat_p99_ms']:.2f}" for rate, v in r["steps"].items())
+        print(f"{name:38s} {r['sustained_hz']:8.0f} Hz  {cells}", flush=True)
+    echo = results.get(rows[0][0], {}).get("sustained_hz", 0.0)
+    for name in list(results)[1:]:
+        share = results[name]["sustained_hz"] / echo if echo else float("nan")
+        print(f"{name}: sustains {results[name]['sustained_hz']:.0f} Hz lossless, "
+              f"{share:.2f} of the echo node's {echo:.0f} Hz")
     return 0
 
 

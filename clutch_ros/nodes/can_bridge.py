@@ -34,6 +34,7 @@ from clutch_ros.canbus.dbc import frame_key
 from clutch_ros.nodes.can_diagnostics import bridge_status
 from clutch_ros.nodes.common import (
     Diagnostics,
+    LogThrottle,
     ParamSpec,
     declare_params,
     reliable_qos,
@@ -87,6 +88,7 @@ class CanBridgeNode(Node):
         from clutch_ros.canbus.stats import PublishPacer
 
         cfg = self._cfg = declare_params(self, PARAMS)
+        self._send_warn = LogThrottle(5.0)
         self._db = RigDatabase(cfg["bridge.dbc_file"] or None)
         self._trigger = self._db.frame(cfg["bridge.publish_on"]).key \
             if cfg["bridge.publish_on"] else None
@@ -213,7 +215,8 @@ class CanBridgeNode(Node):
         try:
             self._bus.send(out.frame, timeout=SEND_TIMEOUT)
         except CanError as err:  # link down: the pump's own timeout takes it to 0 bar
-            self.get_logger().warning(f"pump request not sent: {err}", throttle_duration_sec=5.0)
+            if self._send_warn.ready():
+                self.get_logger().warning(f"pump request not sent: {err}")
         if command is None and (out.pressure, out.reason) == self._last_report:
             return
         self._last_report = (out.pressure, out.reason)

@@ -24,6 +24,7 @@ from rclpy.node import Node
 
 from clutch_ros.nodes.common import (
     Diagnostics,
+    LogThrottle,
     ParamSpec,
     declare_params,
     reliable_qos,
@@ -86,6 +87,7 @@ class ControllerNode(Node):
         self._estimate = None
         self._counts = {"commands": 0, "limited": 0, "failsafe": 0, "bad_requests": 0}
         self._last_reason = ""
+        self._warn = LogThrottle(5.0)
         self._pub = self.create_publisher(PressureCommand, "pressure_command", reliable_qos())
         # Only the newest sample of each input matters: shallow queues, so a busy moment
         # never leaves the controller working through a backlog of old samples.
@@ -124,7 +126,8 @@ class ControllerNode(Node):
         warning = self._ctl.set_request(now, msg.torque)
         if warning:
             self._counts["bad_requests"] += 1
-            self.get_logger().warning(warning, throttle_duration_sec=5.0)
+            if self._warn.ready():
+                self.get_logger().warning(warning)
 
     def _on_rig(self, msg) -> None:
         self._seen["rig data"] = self._now()

@@ -19,6 +19,7 @@ from rclpy.node import Node
 
 from clutch_ros.nodes.common import (
     Diagnostics,
+    LogThrottle,
     ParamSpec,
     declare_params,
     reliable_qos,
@@ -58,6 +59,7 @@ class EstimatorNode(Node):
         self._accepted_at_last_diag = 0
         self._last_input = None
         self._last_error = ""
+        self._warn = LogThrottle(5.0)
         self._pub = self.create_publisher(_msg_type(), "clutch_estimate", reliable_qos())
         # Sensor-data QoS (best effort) as the bridge offers it, with a deep queue so a
         # stall of the estimator does not overwrite samples; samples lost anyway are counted
@@ -112,8 +114,9 @@ class EstimatorNode(Node):
     def _skip(self, kind: str, why: str, count: int = 1) -> None:
         self._skipped[kind] = self._skipped.get(kind, 0) + count
         self._last_error = why
-        self.get_logger().warning(f"skipped sample ({kind}): {why}",
-                                  throttle_duration_sec=5.0)
+        if self._warn.ready():  # see LogThrottle: cheap when throttled
+            self.get_logger().warning(f"skipped sample ({kind}): {why} (counts on "
+                                      "/diagnostics)")
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         from clutch_ros.nodes.model_params import apply_model_changes
