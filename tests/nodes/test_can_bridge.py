@@ -360,7 +360,9 @@ def test_log_input_vector_samples_and_rig_asc(tmp_path):
             received = {ns: [] for ns in runs}
             for ns in runs:
                 h.node.create_subscription(RigState, f"{ns}/rig_state",
-                                           lambda m, ns=ns: received[ns].append(time.monotonic()),
+                                           lambda m, ns=ns: received[ns].append(
+                                               (time.monotonic(), m.header.stamp.sec
+                                                + m.header.stamp.nanosec * 1e-9)),
                                            deep)
 
             def done(ns):
@@ -388,8 +390,12 @@ def test_log_input_vector_samples_and_rig_asc(tmp_path):
     assert int(views["/v0"]["unknown_frames"]) == 12 and int(views["/v0"]["error_frames"]) == 4
     _check_log_states(states["/fast"])
     _check_log_states(states["/real"])
-    span = received["/real"][-1] - received["/real"][0]
-    assert span >= 0.8, span  # recorded timing: the log spans 1 s (never faster than that)
+    # Recorded timing: between any two received samples, as much wall time passed as log
+    # time (the log spans 1 s). Measured on what arrived, so a late DDS match that loses the
+    # first best-effort samples does not matter; most of the log must have arrived.
+    (wall0, log0), (wall1, log1) = received["/real"][0], received["/real"][-1]
+    assert log1 - log0 >= 0.5, (log0, log1)
+    assert wall1 - wall0 >= 0.9 * (log1 - log0), (wall1 - wall0, log1 - log0)
 
 
 def test_bad_settings_fail_at_start_with_one_line(tmp_path, ros_env):
