@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from clutch_ros.model.metrics import longest_run
 from clutch_ros.rig.request_profile import request_at, settled_mask
 
 __all__ = ["DemoSeries", "closed_loop_summary", "load_series"]
@@ -74,19 +75,6 @@ def _rmse(a, b) -> float:
     return float(np.sqrt(np.mean((a[ok] - b[ok]) ** 2))) if ok.any() else math.nan
 
 
-def _longest_run(flags, t) -> float:
-    """Longest contiguous duration [s] where ``flags`` is True (t sorted)."""
-    longest, start = 0.0, None
-    for flag, now in zip(flags, t):
-        if flag and start is None:
-            start = now
-        elif not flag and start is not None:
-            longest, start = max(longest, now - start), None
-    if start is not None:
-        longest = max(longest, t[-1] - start)
-    return float(longest)
-
-
 def _coverage(rig_stamps, est_stamps) -> float:
     """Fraction of rig samples since the first estimate that got an estimate (same stamp)."""
     if not len(est_stamps):
@@ -113,7 +101,7 @@ def closed_loop_summary(bag, profile, started_at: float) -> dict:
         "settled_samples": int(use.sum()),
         "worst_overshoot": worst,
         "worst_undershoot": float(np.nanmin(ratio)) if use.any() else math.nan,
-        "longest_overshoot_s": _longest_run(over, s.rig_time) if len(s.rig_time) else 0.0,
+        "longest_overshoot_s": longest_run(over, s.rig_time),
         "estimator_rmse_nm": _rmse(s.modelled, s.est_measured),
         "reference_rmse_nm": _rmse(s.reference, s.est_measured),
         "rig_samples": int(len(s.rig_time)),

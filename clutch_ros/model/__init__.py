@@ -79,6 +79,7 @@ from clutch_ros.model.metrics import (
     accuracy_summary,
     cross_correlation,
     hysteresis_width,
+    longest_run,
     overshoot,
     request_accuracy,
     rmse,
@@ -144,7 +145,7 @@ __all__ = [
     "ClutchEstimator", "Estimate", "EstimateBatch", "estimate_batch",
     # metrics
     "torque_accuracy", "request_accuracy", "overshoot", "undershoot", "rmse", "within_band",
-    "cross_correlation", "CrossCorrelation", "hysteresis_width", "accuracy_summary",
+    "cross_correlation", "CrossCorrelation", "hysteresis_width", "accuracy_summary", "longest_run",
     # sequences
     "Sequence", "SEQUENCE_NAMES", "make_sequence", "step_sequence",
     "incremented_step_sequence", "ramp_sequence", "pbd_sequence", "table3", "table4",

@@ -36,8 +36,7 @@ __all__ = [
     "CrossCorrelation",
     "cross_correlation",
     "hysteresis_width",
-    "accuracy_summary",
-]
+    "accuracy_summary", "longest_run"]
 
 
 def _ratio(num, den, min_torque):
@@ -213,3 +212,22 @@ def accuracy_summary(measured, modelled, reference=None, threshold_fraction: flo
         "max_accuracy": float(sel.max()) if sel.size else float("nan"),
         "min_accuracy": float(sel.min()) if sel.size else float("nan"),
     }
+
+
+def longest_run(flags, t) -> float:
+    """Longest contiguous stretch [s] where ``flags`` is True, on sorted times ``t`` [s].
+
+    A stretch runs from its first True sample to the first False sample after it (or the
+    last sample). Used for "no overshoot above 1.1 lasting longer than 0.5 s".
+    """
+    flags = np.asarray(flags, dtype=bool)
+    t = np.asarray(t, dtype=float)
+    longest, start = 0.0, None
+    for flag, now in zip(flags.tolist(), t.tolist()):
+        if flag and start is None:
+            start = now
+        elif not flag and start is not None:
+            longest, start = max(longest, now - start), None
+    if start is not None and t.size:
+        longest = max(longest, float(t[-1]) - start)
+    return float(longest)

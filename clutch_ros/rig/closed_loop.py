@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clutch_ros.model.metrics import longest_run
 from clutch_ros.rig.request_profile import Segment, request_at, settled_mask, slip_at
 
 __all__ = ["ClosedLoopResult", "run_closed_loop"]
@@ -91,14 +92,8 @@ def _figures(out: dict, profile) -> ClosedLoopResult:
     ratio = meas[settled] / req[settled]
     over = np.zeros(t.shape, dtype=bool)
     over[settled] = ratio > 1.0 + BAND
-    longest, start = 0.0, None
-    for flag, now in zip(over, t):
-        if flag and start is None:
-            start = now
-        elif not flag and start is not None:
-            longest, start = max(longest, now - start), None
     return ClosedLoopResult(
         t, req, meas, out["modelled"], out["command"], out["pressure"], settled,
         within_10pct=float(np.mean(np.abs(ratio - 1.0) <= BAND)) if ratio.size else math.nan,
         worst_overshoot=float(ratio.max()) if ratio.size else math.nan,
-        longest_overshoot_s=float(longest))
+        longest_overshoot_s=longest_run(over, t))

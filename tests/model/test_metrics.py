@@ -73,3 +73,14 @@ def test_hysteresis_width_on_a_synthetic_loop():
     assert_allclose(hysteresis_width(p, torque, 20e5), 0.1 * 20e5 * 3e-4, rtol=1e-12)
     with pytest.raises(InputError):
         hysteresis_width(p, torque, 50e5)
+
+
+def test_longest_run_measures_the_longest_true_stretch():
+    from clutch_ros.model.metrics import longest_run
+
+    t = np.arange(10) * 0.1  # [s]
+    flags = [0, 1, 1, 0, 1, 1, 1, 1, 0, 1]
+    # Stretches: 0.1..0.3 (0.2 s), 0.4..0.8 (0.4 s), 0.9..end (0 s): exact by construction.
+    np.testing.assert_allclose(longest_run(flags, t), 0.4, rtol=1e-12)
+    assert longest_run([0, 0, 0], t[:3]) == 0.0
+    np.testing.assert_allclose(longest_run([1, 1, 1], t[:3]), 0.2, rtol=1e-12)
