@@ -123,6 +123,9 @@ def _drive(profile, procs, out: Path, args):
     recorder = RecorderNode(parameter_overrides=[
         rclpy.parameter.Parameter("recorder.output", value=str(out / "bag")),
         rclpy.parameter.Parameter("recorder.storage", value=args.storage)])
+    from rclpy.logging import LoggingSeverity
+
+    recorder.get_logger().set_level(LoggingSeverity.WARN)  # the summary says where the bag is
     executor.add_node(driver)
     executor.add_node(recorder)
     try:
