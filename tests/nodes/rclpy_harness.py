@@ -48,3 +48,26 @@ class Harness:
             if time.monotonic() > end:
                 raise AssertionError(f"timed out after {timeout} s waiting for {what}")
             self.executor.spin_once(timeout_sec=0.01)
+
+
+def assert_bad_settings_fail_at_start(node: str, cases: dict, env: dict) -> None:
+    """Start ``clutch_ros.nodes.<node>`` once per case ``{name: (ros args, text)}``.
+
+    Each must exit 2 with exactly one ``<node>: error: ...`` line containing ``text`` and no
+    traceback (the cases run in parallel).
+    """
+    import subprocess
+    import sys
+
+    from tests.conftest import REPO
+
+    procs = {name: subprocess.Popen(
+        [sys.executable, "-m", f"clutch_ros.nodes.{node}", "--ros-args", *args],
+        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        for name, (args, _) in cases.items()}
+    for name, proc in procs.items():
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 2, (name, out, err)
+        assert "Traceback" not in err, (name, err)
+        lines = [line for line in err.splitlines() if line.startswith(f"{node}: error:")]
+        assert len(lines) == 1 and cases[name][1] in lines[0], (name, err)

@@ -22,8 +22,6 @@ import bisect
 import math
 import os
 import statistics
-import subprocess
-import sys
 import time
 
 import can
@@ -35,7 +33,7 @@ from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_ar
 from tests.canbus.fuzzgen import generate
 from tests.canbus.recorder import BusRecorder, bus_params, private_group
 from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness
+from tests.nodes.rclpy_harness import Harness, assert_bad_settings_fail_at_start
 
 pytestmark = pytest.mark.ros
 
@@ -406,13 +404,4 @@ def test_bad_settings_fail_at_start_with_one_line(tmp_path, ros_env):
         "filter": (["-p", "can.filters:=['0x100']"], "CAN filter"),
         "range": (["-p", "pump.max_pressure:=1e9"], "pump.max_pressure"),
     }
-    procs = {name: subprocess.Popen(
-        [sys.executable, "-m", "clutch_ros.nodes.can_bridge", "--ros-args", *args],
-        cwd=REPO, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        for name, (args, _) in cases.items()}
-    for name, proc in procs.items():
-        out, err = proc.communicate(timeout=60)
-        assert proc.returncode == 2, (name, out, err)
-        assert "Traceback" not in err, (name, err)
-        lines = [line for line in err.splitlines() if line.startswith("can_bridge: error:")]
-        assert len(lines) == 1 and cases[name][1] in lines[0], (name, err)
+    assert_bad_settings_fail_at_start("can_bridge", cases, ros_env)

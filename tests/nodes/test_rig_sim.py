@@ -11,8 +11,6 @@ A python-can receiver in this process records the rig's private udp_multicast gr
 
 import math
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -20,8 +18,7 @@ import pytest
 from clutch_ros.canbus import RigDatabase
 from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
 from tests.canbus.recorder import BusRecorder, bus_params, private_group
-from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness
+from tests.nodes.rclpy_harness import Harness, assert_bad_settings_fail_at_start
 
 pytestmark = pytest.mark.ros
 
@@ -127,13 +124,4 @@ def test_bad_parameters_fail_at_start_with_one_line(ros_env):
         "dt type": (["-p", "rig.dt:=fast"], "rig.dt"),
         "interface": (["-p", "can.interface:=nonsense"], "unknown CAN interface"),
     }
-    procs = {name: subprocess.Popen(
-        [sys.executable, "-m", "clutch_ros.nodes.rig_sim", "--ros-args", *args],
-        cwd=REPO, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        for name, (args, _) in cases.items()}
-    for name, proc in procs.items():
-        out, err = proc.communicate(timeout=60)
-        assert proc.returncode == 2, (name, out, err)
-        assert "Traceback" not in err, (name, err)
-        lines = [line for line in err.splitlines() if line.startswith("rig_sim: error:")]
-        assert len(lines) == 1 and cases[name][1] in lines[0], (name, err)
+    assert_bad_settings_fail_at_start("rig_sim", cases, ros_env)
