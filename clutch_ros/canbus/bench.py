@@ -172,39 +172,31 @@ def _assembled(
     return throughput, probe.latencies, len(frames) - probe.count, publisher.rate
 
 
+def _result(name: str, throughput: float, lat1: list[float], lat5: list[float], lost: int,
+            *extra) -> BenchResult:
+    """Build a row: latencies [s] -> median/p99 [ms] at 1 and 5 kHz."""
+    ms = 1000.0
+    median1 = statistics.median(lat1) * ms if lat1 else float("nan")
+    median5 = statistics.median(lat5) * ms if lat5 else float("nan")
+    return BenchResult(name, throughput, median1, _percentile(lat1, 0.99) * ms, median5,
+                       _percentile(lat5, 0.99) * ms, lost, *extra)
+
+
 def run_bench(frames: int = 20000, seconds: float = 2.0) -> list[BenchResult]:
     """Run both paths; ``frames`` for throughput, ``seconds`` [s] per latency rate."""
     db = RigDatabase()
     bulk = _frames(db, frames)
     paced_1k = _frames(db, max(1, int(1000 * seconds)))
     paced_5k = _frames(db, max(1, int(5000 * seconds)))
-    ms = 1000.0
-
     thr, _, lost0 = _bare(bulk, None)
     _, lat1, lost1 = _bare(paced_1k, 1000.0)
     _, lat5, lost5 = _bare(paced_5k, 5000.0)
-    bare = BenchResult(
-        "bare python-can recv loop",
-        thr,
-        statistics.median(lat1) * ms if lat1 else float("nan"),
-        _percentile(lat1, 0.99) * ms,
-        statistics.median(lat5) * ms if lat5 else float("nan"),
-        _percentile(lat5, 0.99) * ms,
-        lost0 + lost1 + lost5,
-    )
+    bare = _result("bare python-can recv loop", thr, lat1, lat5, lost0 + lost1 + lost5)
     thr, _, lost0, _ = _assembled(db, bulk, None)
     _, lat1, lost1, snaps = _assembled(db, paced_1k, 1000.0)
     _, lat5, lost5, _ = _assembled(db, paced_5k, 5000.0)
-    full = BenchResult(
-        "Notifier + DBC decode + assembler (1 kHz snapshots)",
-        thr,
-        statistics.median(lat1) * ms if lat1 else float("nan"),
-        _percentile(lat1, 0.99) * ms,
-        statistics.median(lat5) * ms if lat5 else float("nan"),
-        _percentile(lat5, 0.99) * ms,
-        lost0 + lost1 + lost5,
-        snaps,
-    )
+    full = _result("Notifier + DBC decode + assembler (1 kHz snapshots)", thr, lat1, lat5,
+                   lost0 + lost1 + lost5, snaps)
     return [bare, full]
 
 

@@ -14,6 +14,7 @@ the estimator's preset, so the demo never compares a model with itself.
 
 from __future__ import annotations
 
+import math
 import os
 import random
 import sys
@@ -107,7 +108,7 @@ def run(args) -> int:
 def _rated_torque(params) -> float:
     from clutch_ros.model import reference_torque
 
-    return float(abs(reference_torque(params, 40e5, 35.0, 10.0 * 2.0 * 3.141592653589793 / 60)))
+    return float(abs(reference_torque(params, 40e5, 35.0, 10.0 * 2.0 * math.pi / 60.0)))
 
 
 def _drive(profile, procs, out: Path, args):

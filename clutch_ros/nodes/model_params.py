@@ -14,34 +14,21 @@ __all__ = ["model_param_specs", "declare_model_params", "validated_params",
            "apply_model_changes"]
 
 
-def _attr(spec, *names, default=None):
-    for name in names:
-        if hasattr(spec, name):
-            return getattr(spec, name)
-    return default
-
-
 def model_param_specs(prefix: str = "", defaults: dict | None = None) -> list[ParamSpec]:
     """Return a ParamSpec per model key, defaults from ``defaults`` (flat dotted keys)."""
     from clutch_ros.model import PARAMETER_SPECS
 
     specs = []
     for key, spec in PARAMETER_SPECS.items():
-        default = (defaults or {}).get(key, _attr(spec, "default"))
+        default = (defaults or {}).get(key, spec.default)
         if default is None:
             continue
-        kind = _attr(spec, "kind", default="")
-        if kind == "float" and isinstance(default, int) and not isinstance(default, bool):
+        if spec.kind == "float" and isinstance(default, int) and not isinstance(default, bool):
             default = float(default)  # a YAML "35" must still declare a double parameter
-        specs.append(ParamSpec(
-            name=prefix + key,
-            default=default,
-            description=_attr(spec, "description", default=""),
-            unit=_attr(spec, "unit", default=""),
-            minimum=_attr(spec, "minimum", "min"),
-            maximum=_attr(spec, "maximum", "max"),
-            choices=tuple(_attr(spec, "choices", default=()) or ()),
-        ))
+        specs.append(ParamSpec(name=prefix + key, default=default,
+                               description=spec.description, unit=spec.unit,
+                               minimum=spec.minimum, maximum=spec.maximum,
+                               choices=spec.choices))
     return specs
 
 
