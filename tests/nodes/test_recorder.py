@@ -2,10 +2,10 @@
 
 A test node publishes, as fast as it can, 20,000 RigState (best effort, sensor-data QoS) and
 20,000 ClutchEstimate plus 2,000 TorqueRequest (reliable, KEEP_ALL: the publisher waits for
-the recorder) and 2,000 PressureCommand from a reliable KEEP_LAST(10) publisher (which
-overwrites samples the recorder has not acknowledged yet), then a slow trailer of 50
-RigState so a loss at the very end of the burst shows up as a gap. Every message carries its
-index as header stamp (``i`` ms). After SIGINT the recorder exits 0 and:
+the recorder, see ``_publish_waiting``) and 2,000 PressureCommand from a reliable
+KEEP_LAST(10) publisher (which overwrites samples the recorder has not acknowledged yet), then
+a slow trailer of 50 RigState so a loss at the very end of the burst shows up as a gap. Every
+message carries its index as header stamp (``i`` ms). After SIGINT the recorder exits 0 and:
 
 - the bag holds exactly what the recorder reports received, per topic (summary log line,
   bag custom_data, ``check_bag``);
@@ -40,6 +40,30 @@ def _stamp(msg, i: int):
     return msg
 
 
+def _publish_waiting(harness, pub, msg, stats: dict, timeout: float = 30.0) -> None:
+    """Publish ``msg`` on a reliable KEEP_ALL publisher, waiting while the reader catches up.
+
+    Fast DDS keeps a KEEP_ALL writer's unacknowledged samples up to its resource limit
+    (``max_samples`` 5000); when that is full, ``write`` blocks for ``max_blocking_time``
+    (100 ms) and then fails *without* adding the sample, which rclpy raises as ``RCLError``
+    ("cannot publish data"). On a loaded 2-core machine the recorder can fall that far behind,
+    so we back off and publish the same sample again (the remedy Fast DDS documents). A sample
+    written twice would show up below as a repeated stamp and fail the order check.
+    """
+    from rclpy._rclpy_pybind11 import RCLError
+
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            pub.publish(msg)
+            return
+        except RCLError:
+            if time.monotonic() > end:
+                raise
+            stats["retries"] = stats.get("retries", 0) + 1
+            harness.spin_for(0.02)
+
+
 def _recorder_values(diags) -> dict:
     for array in reversed(diags):
         for status in array.status:
@@ -72,10 +96,14 @@ def test_burst_counts_in_equal_counts_out(ros_env, tmp_path):
                          and _recorder_values(diags), 60.0, "the recorder to start")
             h.spin_for(0.5)
             msgs = {t: cls() for t, (cls, _, _) in plan.items()}
+            backoff = {}
             for i in range(N_BURST):  # as fast as possible, topics interleaved
-                for topic, (_, _, n) in plan.items():
-                    if i < n:
+                for topic, (_, qos, n) in plan.items():
+                    if i < n and qos is keep_all:
+                        _publish_waiting(h, pubs[topic], _stamp(msgs[topic], i), backoff)
+                    elif i < n:
                         pubs[topic].publish(_stamp(msgs[topic], i))
+            print("publisher back-offs on a full KEEP_ALL history:", backoff.get("retries", 0))
             for i in range(N_BURST, N_BURST + N_TRAILER):
                 pubs["rig_state"].publish(_stamp(msgs["rig_state"], i))
                 h.spin_for(0.01)
