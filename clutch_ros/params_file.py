@@ -31,7 +31,7 @@ from clutch_ros.errors import ConfigError
 from clutch_ros.model.errors import ParameterError
 from clutch_ros.model.params import NAMESPACES, ClutchParams
 
-__all__ = ["load_flat", "load_params", "write_params", "flatten", "nest"]
+__all__ = ["load_flat", "load_params", "load_yaml", "write_params", "flatten", "nest"]
 
 _WILDCARDS = ("/**", "**")
 
@@ -77,6 +77,27 @@ def _matches(section: str, node: str | None) -> bool:
     return sec == node.strip("/") or sec == name or sec == f"**/{name}"
 
 
+def load_yaml(path, what: str) -> Any:
+    """Parse the YAML file ``path``; errors raise a one-line :class:`ConfigError`.
+
+    ``what`` names the file's role in the messages (e.g. ``"parameter file"``). Unreadable
+    files, bad encodings and YAML syntax errors (with the line number) are reported.
+    """
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read {what} ({err.strerror or err})") from err
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{path}: {what} is not UTF-8 text ({err.reason})") from err
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{path}:{where} invalid YAML: "
+                          f"{getattr(err, 'problem', None) or err}") from err
+
+
 def load_flat(path, node: str | None = None) -> dict[str, Any]:
     """Return all parameters of ``path`` as dotted keys.
 
@@ -86,18 +107,7 @@ def load_flat(path, node: str | None = None) -> dict[str, Any]:
     """
     path = Path(path)
     source = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as err:
-        raise ConfigError(f"{source}: cannot read parameter file ({err.strerror or err})") \
-            from err
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" line {mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{source}:{where} invalid YAML: "
-                          f"{getattr(err, 'problem', None) or err}") from err
+    data = load_yaml(path, "parameter file")
     if not isinstance(data, Mapping) or not data:
         raise ConfigError(f"{source}: expected a ROS 2 parameter file ('/**:' -> "
                           "'ros__parameters:' -> parameters)")

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from clutch_ros.errors import ClutchError
 
-__all__ = ["add_parser", "run", "main"]
+__all__ = ["add_parser", "run", "main", "read_calibration"]
 
 
 def add_parser(sub) -> None:
@@ -38,7 +38,7 @@ def run(args) -> int:
     import numpy as np
 
     from clutch_ros.bag.reader import read_rig_states
-    from clutch_ros.cli.fit import _voltages
+    from clutch_ros.cli.fit import flexiforce_voltages
     from clutch_ros.model.calibration import compare_methods, quasi_static_mask
     from clutch_ros.params_file import load_params
     from clutch_ros.presets import preset_path
@@ -47,7 +47,7 @@ def run(args) -> int:
     volts, forces, masks = [], [], []
     for bag in args.bags:
         rig = read_rig_states(Path(bag))
-        v = _voltages(rig) if len(rig) else None
+        v = flexiforce_voltages(rig) if len(rig) else None
         if v is None:
             raise ClutchError(f"{bag}: no FlexiForce voltages (ff_voltages empty)")
         volts.append(v)
@@ -86,6 +86,34 @@ def run(args) -> int:
     lines.append(comparison.summary())
     sys.stdout.write("\n".join(lines) + "\n")
     return 0
+
+
+def read_calibration(path, method: str = "same_force"):
+    """Read one method's calibration from a YAML file written by ``clutch calibrate -o``.
+
+    The file holds both methods (``same_force``, ``same_sensor``: the mappings of
+    :meth:`~clutch_ros.model.calibration.SensorCalibration.to_dict`); ``method`` picks one.
+    Returns a :class:`~clutch_ros.model.calibration.SensorCalibration`; a missing file, bad
+    YAML, a missing method or bad coefficients raise :class:`ClutchError` naming the file.
+    """
+    from clutch_ros.model.calibration import METHODS, CalibrationError, SensorCalibration
+    from clutch_ros.params_file import load_yaml
+
+    path = Path(path)
+    if method not in METHODS:
+        raise ClutchError(f"unknown calibration method {method!r} (one of {', '.join(METHODS)})")
+    doc = load_yaml(path, "calibration file")
+    entry = doc.get(method) if isinstance(doc, dict) else None
+    if not isinstance(entry, dict):
+        raise ClutchError(f"{path}: no {method!r} calibration in it (write one with "
+                          "'clutch calibrate BAG... -o FILE')")
+    if entry.get("method", method) != method:
+        raise ClutchError(f"{path}: the {method!r} entry says method "
+                          f"{entry.get('method')!r}")
+    try:
+        return SensorCalibration.from_dict(entry)
+    except (CalibrationError, KeyError, TypeError, ValueError) as err:
+        raise ClutchError(f"{path}: bad {method!r} calibration ({err})") from err
 
 
 def main(argv=None) -> int:

@@ -13,6 +13,9 @@ sensors are calibrated on the bags themselves (thesis §5.5; ``--calibration sam
 (default) or ``same_sensor``, fitted against F_act = p·A on quasi-static samples) and the
 front−rear pressure difference joins the objective with ``--pdiff-weight`` (``--no-pdiff``
 leaves it out). A failed calibration is reported and the fit goes on with the torque alone.
+``--calibration-file FILE`` uses a calibration written by ``clutch calibrate -o`` instead
+(the ``--calibration`` method of it), for bags without quasi-static plateaus to calibrate on
+(a single ramp); a sensor count that does not match the bags is an error.
 
 Data that cannot identify the model (no measured torque, constant pressure, too short, a
 parameter without effect or confounded with another) are refused with a one-line error and
@@ -27,7 +30,7 @@ from pathlib import Path
 
 from clutch_ros.errors import ClutchError
 
-__all__ = ["add_parser", "run", "main", "load_runs", "flexiforce_pressures"]
+__all__ = ["add_parser", "run", "main", "load_runs", "flexiforce_pressures", "flexiforce_voltages"]
 
 LAWS = ("none", "ff_t", "ff_v", "coulomb")
 
@@ -51,6 +54,9 @@ def add_parser(sub) -> None:
     p.add_argument("--calibration", choices=("same_force", "same_sensor"),
                    default="same_force", help="FlexiForce calibration for P_diff "
                    "(default: same_force, Eqs. 6-9)")
+    p.add_argument("--calibration-file", metavar="FILE",
+                   help="use this FlexiForce calibration (YAML of 'clutch calibrate -o') "
+                        "instead of calibrating on the bags")
     p.add_argument("--no-pdiff", action="store_true",
                    help="fit the torque only, even when FlexiForce voltages are present")
     p.add_argument("--pdiff-weight", type=float, default=None, metavar="W",
@@ -68,12 +74,13 @@ def add_parser(sub) -> None:
 
 
 def load_runs(bags, piston_area: float, *, pdiff: bool = True,
-              calibration: str = "same_force"):
+              calibration: str = "same_force", fixed=None):
     """Read the bags into :class:`~clutch_ros.model.identification.FitRun` objects.
 
-    Returns ``(runs, info)``; ``info`` holds the calibration (``calibration``: the fitted
-    :class:`~clutch_ros.model.calibration.SensorCalibration` or None, ``comparison``: both
-    methods compared, ``calibration_error``: why none was fitted).
+    Returns ``(runs, info)``; ``info`` holds the calibration (``calibration``: the fitted or
+    given (``fixed``) :class:`~clutch_ros.model.calibration.SensorCalibration` or None,
+    ``comparison``: both methods compared when fitted, ``calibration_error``: why there is
+    none).
     """
     import numpy as np
 
@@ -87,7 +94,8 @@ def load_runs(bags, piston_area: float, *, pdiff: bool = True,
             raise ClutchError(f"{bag}: no RigState messages")
         arrays.append((Path(bag), rig))
     pressures, info = flexiforce_pressures([rig for _, rig in arrays], piston_area,
-                                           calibration=calibration, enabled=pdiff)
+                                           calibration=calibration, enabled=pdiff,
+                                           fixed=fixed)
     runs = []
     for (bag, rig), discs in zip(arrays, pressures):
         measured = np.where(rig.has_measured_torque.astype(bool), rig.measured_torque, np.nan)
@@ -99,13 +107,15 @@ def load_runs(bags, piston_area: float, *, pdiff: bool = True,
 
 
 def flexiforce_pressures(rigs, piston_area: float, *, calibration: str = "same_force",
-                         enabled: bool = True):
+                         enabled: bool = True, fixed=None):
     """Front/rear lamella pressures [Pa] from the FlexiForce voltages of RigState arrays.
 
     The sensors are calibrated on the runs themselves (thesis §5.5: both methods fitted
     against F_act = p·A on the quasi-static samples of every run with voltages, ``calibration``
-    selecting the one used). Returns ``(pressures, info)``: per run ``(front, rear)`` arrays
-    (n,) or None (no voltages, no calibration), and ``info`` as :func:`load_runs` describes.
+    selecting the one used), unless ``fixed`` gives a ``SensorCalibration`` to use as it is
+    (then a run whose sensor count differs from it raises :class:`ClutchError`). Returns
+    ``(pressures, info)``: per run ``(front, rear)`` arrays (n,) or None (no voltages, no
+    calibration), and ``info`` as :func:`load_runs` describes.
     """
     import numpy as np
 
@@ -118,11 +128,18 @@ def flexiforce_pressures(rigs, piston_area: float, *, calibration: str = "same_f
     info: dict = {"calibration": None, "comparison": None, "calibration_error": None}
     if not enabled:
         return [None] * len(rigs), info
-    voltages = [_voltages(rig) for rig in rigs]
+    voltages = [flexiforce_voltages(rig) for rig in rigs]
     if all(v is None for v in voltages):
         info["calibration_error"] = "no FlexiForce voltages in the bags"
         return [None] * len(rigs), info
     widths = {v.shape[1] for v in voltages if v is not None}
+    if fixed is not None:
+        if widths != {2 * fixed.sensors_per_lamella}:
+            raise ClutchError(f"the calibration is for {2 * fixed.sensors_per_lamella} "
+                              f"FlexiForce sensors, the bags have {sorted(widths)}")
+        info["calibration"] = fixed
+        return [None if v is None else _disc_pressures(fixed, v, piston_area)
+                for v in voltages], info
     try:
         if len(widths) != 1:
             raise CalibrationError(f"the bags have different sensor counts {widths}")
@@ -138,19 +155,20 @@ def flexiforce_pressures(rigs, piston_area: float, *, calibration: str = "same_f
         info["comparison"] = comparison
         info["calibration"] = getattr(comparison, calibration)
     except CalibrationError as err:
-        info["calibration_error"] = str(err)
+        info["calibration_error"] = (f"{err} (no calibration on these bags: calibrate on a run "
+                                     "with pressure plateaus, 'clutch calibrate -o FILE', and "
+                                     "pass --calibration-file FILE)")
         return [None] * len(rigs), info
-    pressures = []
-    for v in voltages:
-        if v is None:
-            pressures.append(None)
-        else:
-            est = info["calibration"].pressures(v, piston_area)
-            pressures.append((est.front, est.rear))
-    return pressures, info
+    return [None if v is None else _disc_pressures(info["calibration"], v, piston_area)
+            for v in voltages], info
 
 
-def _voltages(rig):
+def _disc_pressures(cal, voltages, piston_area: float):
+    est = cal.pressures(voltages, piston_area)
+    return est.front, est.rear
+
+
+def flexiforce_voltages(rig):
     """Return the (n, 2k) FlexiForce voltages of a RigStateArrays, or None when absent."""
     import numpy as np
 
@@ -179,8 +197,13 @@ def run(args) -> int:
     out = Path(args.output)
     if out.is_dir():
         raise ClutchError(f"{out}: is a directory, expected a parameter file name")
+    fixed = None
+    if args.calibration_file:
+        from clutch_ros.cli.calibrate import read_calibration
+
+        fixed = read_calibration(args.calibration_file, args.calibration)
     runs, info = load_runs(args.bags, base.pack.piston_area, pdiff=not args.no_pdiff,
-                           calibration=args.calibration)
+                           calibration=args.calibration, fixed=fixed)
     kwargs = {}
     if args.pdiff_weight is not None:
         kwargs["pdiff_weight"] = args.pdiff_weight
@@ -207,6 +230,7 @@ def run(args) -> int:
         doc.update(output=str(out), bags=[str(b) for b in args.bags],
                    pdiff=cal is not None and not args.no_pdiff,
                    calibration=None if cal is None else cal.to_dict(),
+                   calibration_file=args.calibration_file,
                    calibration_comparison=(None if info["comparison"] is None
                                            else _comparison_brief(info["comparison"])),
                    calibration_error=info["calibration_error"])
@@ -214,8 +238,10 @@ def run(args) -> int:
     else:
         lines = [f"fitted law {args.law} on {len(runs)} bag(s) -> {out}"]
         if cal is not None:
+            source = (f"from {args.calibration_file}" if fixed is not None
+                      else info["comparison"].summary())
             lines.append(f"P_diff from FlexiForce voltages ({cal.method} calibration; "
-                         f"{info['comparison'].summary()})")
+                         f"{source})")
         elif not args.no_pdiff and info["calibration_error"]:
             lines.append(f"no P_diff: {info['calibration_error']}")
         lines += result.lines()

@@ -11,7 +11,10 @@ input sample (header = input header, as the node publishes it) on ``/clutch_esti
 ``--report DIR`` writes PNG plots, among them the thesis's validation views (RMSE per
 sequence, torque accuracy over time, P_diff vs the spline force, the residual
 cross-correlation of Eq. 3; :mod:`clutch_ros.cli.replay_report`), listed per bag under
-``plots`` in the JSON. The work is done by :mod:`clutch_ros.bag.replay`.
+``plots`` in the JSON. The report's measured P_diff comes from the bags' FlexiForce voltages,
+calibrated on the replayed bags (``--calibration`` method) or taken from a calibration file
+written by ``clutch calibrate -o`` (``--calibration-file``). The work is done by
+:mod:`clutch_ros.bag.replay`.
 """
 
 from __future__ import annotations
@@ -41,6 +44,13 @@ def add_parser(sub) -> None:
                    help="write PNG plots into DIR: per bag the replay and the validation views "
                         "(accuracy, P_diff vs spline force, residual cross-correlation), and the "
                         "RMSE per sequence")
+    p.add_argument("--calibration", choices=("same_force", "same_sensor"),
+                   default="same_force", help="FlexiForce calibration method for the "
+                   "report's measured P_diff (default: same_force, Eqs. 6-9)")
+    p.add_argument("--calibration-file", metavar="FILE",
+                   help="with --report: use this FlexiForce calibration (YAML of 'clutch "
+                        "calibrate -o') instead of calibrating on the replayed bags, e.g. "
+                        "for a single ramp that has no plateaus to calibrate on")
     p.add_argument("--json", action="store_true", help="print a JSON list, one object per bag")
     p.set_defaults(func=run)
 
@@ -68,11 +78,20 @@ def run(args) -> int:
     for out in outs:  # fail before any work, not after the first bag
         if out is not None and out.exists():
             raise ClutchError(f"{out}: output exists already; bags are never overwritten")
+    if args.calibration_file and not args.report:
+        raise ClutchError("--calibration-file is used by the report's P_diff view: give "
+                          "--report DIR too")
     report = None
     if args.report:
         from clutch_ros.cli.replay_report import ReplayReport
 
-        report = ReplayReport(Path(args.report), params, params.spline.law)
+        fixed = None
+        if args.calibration_file:
+            from clutch_ros.cli.calibrate import read_calibration
+
+            fixed = read_calibration(args.calibration_file, args.calibration)
+        report = ReplayReport(Path(args.report), params, params.spline.law,
+                              calibration=args.calibration, fixed_calibration=fixed)
     results = []
     for bag, out in zip(bags, outs):
         start = time.perf_counter()

@@ -14,13 +14,17 @@
   (the residual cross-correlation of Eq. 3 with its 99 % band).
 
 The measured P_diff comes from the bags' FlexiForce voltages, calibrated on the replayed bags
-themselves like ``clutch fit`` does (:func:`clutch_ros.cli.fit.flexiforce_pressures`,
-"same force" method, thesis §5.5); bags without voltages show the modelled curves only.
+themselves like ``clutch fit`` does (:func:`clutch_ros.cli.fit.flexiforce_pressures`, "same
+force" method unless told otherwise, thesis §5.5) or with a given calibration (a single ramp
+has no quasi-static plateaus to calibrate on); bags without voltages show the modelled curves
+only. With a measured P_diff the bag's summary gains its RMSE against the model's P_diff.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+
+from clutch_ros.errors import ClutchError
 
 __all__ = ["ReplayReport", "plot_replay", "plot_summary"]
 
@@ -32,13 +36,19 @@ class ReplayReport:
         out_dir: report directory (created).
         params: the replay's ``ClutchParams`` (piston area for the pressure equivalents).
         label: model label in legends and the summary (e.g. the spline law).
+        calibration: FlexiForce calibration method fitted on the bags (``same_force`` or
+            ``same_sensor``).
+        fixed_calibration: a ``SensorCalibration`` to use instead of fitting one.
 
     Only what the views need is kept per bag (the evaluation's arrays, the FlexiForce
     voltages), not the whole replay.
     """
 
-    def __init__(self, out_dir: Path, params, label: str):
+    def __init__(self, out_dir: Path, params, label: str, *, calibration: str = "same_force",
+                 fixed_calibration=None):
         self.out_dir = Path(out_dir)
+        self.calibration = calibration
+        self.fixed_calibration = fixed_calibration
         self.params = params
         self.label = label
         self._runs: list = []  # (evaluation, accepted mask, voltage view)
@@ -49,19 +59,26 @@ class ReplayReport:
 
         import numpy as np
 
+        from clutch_ros.cli.fit import flexiforce_voltages
         from clutch_ros.cli.validation_report import evaluation_from_batch
 
         rig, batch = result.rig, result.batch
+        ff = rig.columns.get("ff_voltages")
+        volts = SimpleNamespace(  # what flexiforce_pressures reads of a RigStateArrays
+            time=rig.time, actuating_pressure=rig.actuating_pressure, ff_voltages=ff,
+            columns={k: v for k, v in rig.columns.items() if k == "ff_voltages.len"})
+        v = flexiforce_voltages(volts)
+        fixed = self.fixed_calibration
+        if fixed is not None and v is not None and v.shape[1] != 2 * fixed.sensors_per_lamella:
+            raise ClutchError(f"{result.bag}: the calibration is for "  # before any plot
+                              f"{2 * fixed.sensors_per_lamella} FlexiForce sensors, the bags "
+                              f"have [{v.shape[1]}]")
         paths = plot_replay(result.bag, rig, batch, self.out_dir)
         names = {ev.name for ev, _, _ in self._runs}
         name = Path(result.bag).name or "bag"
         if name in names:  # two bags of the same folder name: keep their files apart
             name = f"{name}_{len(self._runs)}"
         ev = evaluation_from_batch(name, rig.time, batch)
-        ff = rig.columns.get("ff_voltages")
-        volts = SimpleNamespace(  # what flexiforce_pressures reads of a RigStateArrays
-            time=rig.time, actuating_pressure=rig.actuating_pressure, ff_voltages=ff,
-            columns={k: v for k, v in rig.columns.items() if k == "ff_voltages.len"})
         self._runs.append((ev, np.asarray(batch.accepted, dtype=bool), volts))
         return [str(p) for p in paths]
 
@@ -85,7 +102,9 @@ class ReplayReport:
             for summary in summaries:
                 summary["plots"].append(overview)
         area = self.params.pack.piston_area
-        discs, info = flexiforce_pressures([v for _, _, v in self._runs], area)
+        discs, info = flexiforce_pressures([v for _, _, v in self._runs], area,
+                                           calibration=self.calibration,
+                                           fixed=self.fixed_calibration)
         evaluations = []
         for (ev, ok, _), pressures in zip(self._runs, discs):
             if pressures is not None:
@@ -102,8 +121,23 @@ class ReplayReport:
                 "measured_pdiff": (cal.method if cal is not None
                                    and ev.measured_pdiff is not None else None),
                 "calibration_error": info["calibration_error"],
+                "calibration_source": (None if cal is None else "file"
+                                       if self.fixed_calibration is not None else "bags"),
+                "pdiff_rmse_pa": _pdiff_rmse(ev),
             }
         return written
+
+
+def _pdiff_rmse(ev) -> float | None:
+    """RMSE of measured − modelled P_diff [Pa] over the finite pairs, or None."""
+    import math
+
+    from clutch_ros.model.metrics import rmse
+
+    if ev.measured_pdiff is None:
+        return None
+    value = rmse(ev.measured_pdiff, ev.pressure_difference)
+    return None if math.isnan(value) else value
 
 
 def plot_replay(bag: Path, rig, batch, out_dir: Path) -> list[Path]:

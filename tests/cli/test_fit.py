@@ -141,6 +141,38 @@ def test_fit_refuses_unidentifiable_data(bags, tmp_path, capsys):
     assert not out_file.exists()
 
 
+def test_fit_with_a_calibration_file(bags, tmp_path, capsys):
+    """Sensors calibrated on the step run drive the P_diff of a fit on the ramp alone."""
+    import yaml
+
+    cal_file = tmp_path / "cal.yaml"
+    rc, _, err = _run(calibrate_cmd, [bags["inc_step"], "-o", cal_file], capsys)
+    assert rc == 0, err
+    stored = yaml.safe_load(cal_file.read_text())
+    out_file = tmp_path / "none.yaml"
+    rc, out, err = _run(fit_cmd, [bags["ramp4"], "--law", "none", "--fix",
+                                  "friction.temperature_slope", "--calibration",
+                                  "same_sensor", "--calibration-file", cal_file,
+                                  "-o", out_file, "--json"], capsys)  # fmt: skip
+    assert rc == 0, err
+    doc = json.loads(out)
+    assert doc["pdiff"] is True and doc["calibration_file"] == str(cal_file)
+    assert doc["calibration"] == stored["same_sensor"]  # used as it is, not refitted
+    assert doc["calibration_comparison"] is None
+    rc, out, err = _run(fit_cmd, [bags["ramp4"], "--law", "none", "--fix",
+                                  "friction.temperature_slope", "--calibration-file",
+                                  cal_file, "-o", out_file], capsys)  # fmt: skip
+    assert rc == 0, err
+    assert f"P_diff from FlexiForce voltages (same_force calibration; from {cal_file})" in out
+    stored["same_force"]["coefficients"] = stored["same_force"]["coefficients"][:2]
+    stored["same_force"]["sensors_per_lamella"] = 1
+    cal_file.write_text(yaml.safe_dump(stored))
+    _one_error_line(*_run(fit_cmd, [bags["ramp4"], "--law", "none", "--calibration-file",
+                                    cal_file, "-o", tmp_path / "never.yaml"], capsys),
+                    "calibration is for 2 FlexiForce sensors, the bags have [8]")
+    assert not (tmp_path / "never.yaml").exists()
+
+
 def test_fit_runs_as_a_module(bags, tmp_path):
     out_file = tmp_path / "none.yaml"
     done = subprocess.run([sys.executable, "-m", "clutch_ros.cli.fit", str(bags["ramp4"]),

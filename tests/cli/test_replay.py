@@ -182,6 +182,78 @@ def test_report_measured_pdiff_from_flexiforce(run_bag, inc_step_bag, capsys, tm
     assert len(list(rep.iterdir())) == 2 + 1 + 1 + 2 * len(VIEWS)
 
 
+def test_report_with_a_calibration_file(run_bag, inc_step_bag, capsys, tmp_path):
+    """A lone ramp has no plateaus to calibrate on; a calibration file gives it P_diff.
+
+    The report's P_diff RMSE is recomputed independently: the file's coefficients applied to
+    the bag's voltages (accepted samples, matched by stamp) against the P_diff of the
+    estimates ``-o`` wrote.
+    """
+    import yaml
+
+    from clutch_ros.model.calibration import SensorCalibration
+
+    bag, _ = run_bag
+    args = ("--params", "flexiforce_8", "--law", "coulomb")
+    [alone] = replay(capsys, bag, *args, "--report", tmp_path / "alone")
+    assert alone["validation"]["measured_pdiff"] is None
+    assert "--calibration-file" in alone["validation"]["calibration_error"]  # why, and what to do
+    assert alone["validation"]["pdiff_rmse_pa"] is None
+    cal_file = tmp_path / "cal.yaml"
+    assert clutch_main(["calibrate", str(inc_step_bag), "-o", str(cal_file)]) == 0
+    capsys.readouterr()
+    est_bag = tmp_path / "est"
+    [r] = replay(capsys, bag, *args, "--report", tmp_path / "rep", "--calibration",
+                 "same_sensor", "--calibration-file", cal_file, "-o", est_bag)  # fmt: skip
+    v = r["validation"]
+    assert v["measured_pdiff"] == "same_sensor" and v["calibration_source"] == "file", v
+    assert v["calibration_error"] is None
+
+    cal = SensorCalibration.from_dict(yaml.safe_load(cal_file.read_text())["same_sensor"])
+    rig, _, _ = read_columns(bag, "rig_state")
+    est, _, _ = read_columns(est_bag, "clutch_estimate")
+    first = {}
+    for i, stamp in enumerate(rig["stamp_ns"].tolist()):
+        first.setdefault(stamp, i)  # a repeated stamp is refused; its first sample counts
+    rows = [first[s] for s in est["stamp_ns"].tolist()]
+    area = load_params(preset_path("flexiforce_8")).pack.piston_area
+    measured = cal.pressures(rig["ff_voltages"][rows], area).difference
+    expected = math.sqrt(np.mean((measured - est["pressure_difference"]) ** 2))
+    np.testing.assert_allclose(v["pdiff_rmse_pa"], expected, rtol=1e-9)  # same numbers
+    assert 0.0 < v["pdiff_rmse_pa"] < 5e5  # a real comparison, below the 5 bar P_diff scale
+    assert {f"validation_{view}_seq3.png" for view in VIEWS} <= {
+        p.split("/")[-1] for p in r["plots"]}
+
+
+def test_calibration_file_errors(run_bag, inc_step_bag, tmp_path):
+    import yaml
+
+    bag, _ = run_bag
+    params = ("--params", "flexiforce_8", "--report", tmp_path / "rep")
+    good = tmp_path / "cal.yaml"
+    assert clutch_main(["calibrate", str(inc_step_bag), "-o", str(good)]) == 0
+    one_error_line(clutch(bag, "--params", "flexiforce_8", "--calibration-file", good),
+                   "--report")  # fmt: skip
+    one_error_line(clutch(bag, *params, "--calibration-file", tmp_path / "none.yaml"),
+                   "none.yaml", "cannot read calibration file")  # fmt: skip
+    garbage = tmp_path / "garbage.yaml"
+    garbage.write_text("same_force: [1, 2\n")
+    one_error_line(clutch(bag, *params, "--calibration-file", garbage), "garbage.yaml: line 2",
+                   "invalid YAML")
+    doc = yaml.safe_load(good.read_text())
+    doc["same_force"]["coefficients"] = doc["same_force"]["coefficients"][:4]
+    doc["same_force"]["sensors_per_lamella"] = 2
+    four = tmp_path / "four.yaml"
+    four.write_text(yaml.safe_dump(doc))
+    one_error_line(clutch(bag, *params, "--calibration-file", four),
+                   "calibration is for 4 FlexiForce sensors, the bags have [8]")  # fmt: skip
+    del doc["same_sensor"]
+    four.write_text(yaml.safe_dump(doc))
+    one_error_line(clutch(bag, *params, "--calibration", "same_sensor", "--calibration-file",
+                          four), "four.yaml", "no 'same_sensor' calibration")  # fmt: skip
+    assert not (tmp_path / "rep").exists() or not any((tmp_path / "rep").iterdir())
+
+
 @pytest.mark.parametrize("law", ["ff_v", "ff_t", "none", "coulomb"])
 def test_law_switch(run_bag, capsys, tmp_path, law):
     bag, run = run_bag
