@@ -24,7 +24,8 @@ jittery 1 kHz stamp (±50 µs) re-uses ~10 entries instead of calling ``expm`` e
 The error is ≤ 5 µs of hold time per step, random in sign, i.e. ≤ 5e-5 of the transient per
 step for the 0.1 s pack time constant, and none at all at equilibrium (which is exact for every
 dt). Dts below the resolution count as one resolution step; ``dt_resolution=0`` keys the
-cache on the exact dt. Up to ``cache_size`` (256) dts are kept, oldest evicted first.
+cache on the exact dt. Up to ``cache_size`` (256) dts are kept, the least recently used
+evicted first (a rig's few common dts stay however many rare ones a burst brings).
 """
 
 from __future__ import annotations
@@ -189,7 +190,9 @@ class PackModel:
         if key == self._last_key:
             return self._last_entry
         entry = self._cache.get(key)
-        if entry is None:
+        if entry is not None:
+            self._cache.move_to_end(key)  # least recently used is evicted first
+        else:
             dtq = key * res if res > 0.0 else dt
             phi, _ = zoh_discretize(self.a_matrix, self.b_matrix, dtq)
             gamma = (np.eye(phi.shape[0]) - phi) @ self.static_gain

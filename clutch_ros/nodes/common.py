@@ -143,6 +143,12 @@ def declare_params(node, specs: Iterable[ParamSpec], overrides: dict | None = No
 #: the README); ``--executor events`` before ``--ros-args`` selects the other one.
 DEFAULT_EXECUTOR = "single"
 
+#: Logged when ``--executor events`` is chosen: what the EventsExecutor did here.
+EVENTS_WARNING = ("--executor events is experimental: with the rclpy 9.1.2 wheels from PyPI "
+                  "it ran no subscription or timer callbacks after the first spin and ignored "
+                  "SIGINT; use the default (single) unless your rclpy build was checked with "
+                  "'python -m clutch_ros.nodes.bench'")
+
 
 def make_executor(kind: str = DEFAULT_EXECUTOR):
     """Return a new ``single`` (SingleThreadedExecutor) or ``events`` (EventsExecutor)."""
@@ -262,6 +268,8 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     try:
         node = factory()
         executor = make_executor(executor_kind)
+        if executor_kind == "events":
+            node.get_logger().warning(EVENTS_WARNING)
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):

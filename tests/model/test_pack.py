@@ -202,3 +202,15 @@ def test_spline_correction_is_the_quasi_static_pressure_loss(truth):
     eq1_at_corrected = (2 * pk.effective_radius * mu * pk.lamella_count * pk.piston_area
                         * (40e5 - corr) * math.tanh(W10 / truth.friction.sign_speed))
     assert_allclose(res.torque[-1], eq1_at_corrected, rtol=1e-9)  # rounding of the sums
+
+
+def test_discretisation_cache_evicts_least_recently_used(flexiforce):
+    """A dt in use stays cached while rare dts come and go (cache of 2 entries)."""
+    model = PackModel(flexiforce, cache_size=2)
+    common = model.discretisation(1e-3)
+    model.discretisation(2e-3)
+    assert model.discretisation(1e-3) is common  # a hit: no new expm
+    model.discretisation(3e-3)  # evicts 2 ms, the least recently used, not 1 ms
+    assert model.discretisation(1e-3) is common
+    assert sorted(model._cache) == [100, 300]  # keys in units of dt_resolution (10 µs)
+    assert_allclose(common.M, PackModel(flexiforce).discretisation(1e-3).M, rtol=0, atol=0)

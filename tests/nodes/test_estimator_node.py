@@ -99,3 +99,23 @@ def test_estimates_per_sample_and_bad_samples_skipped(estimator):
     assert skipped.get("skipped_NonFiniteSample", 0) >= 1, keys
     assert skipped.get("skipped_DuplicateSample", 0) >= 1, keys
     assert skipped.get("skipped_OutOfOrderSample", 0) >= 1, keys
+
+
+def test_events_executor_choice_is_warned_about(ros_env, tmp_path):
+    """``--executor events`` starts, but says at once that it is experimental and why."""
+    import time
+
+    from clutch_ros.cli.processes import NodeProcess
+    from clutch_ros.nodes.common import EVENTS_WARNING
+
+    node = NodeProcess("estimator", ["--executor", "events", "--ros-args", "--params-file",
+                                     str(PRESET)], ros_env, tmp_path)  # fmt: skip
+    try:
+        end = time.monotonic() + 30.0
+        while "experimental" not in node.tail() and node.alive() and time.monotonic() < end:
+            time.sleep(0.1)
+        log = node.log_path.read_text()
+    finally:
+        node.kill()  # SIGKILL: this executor was seen to ignore SIGINT
+        node.stop()  # closes the log
+    assert "[WARN]" in log and EVENTS_WARNING in log.replace("\n", " "), log
