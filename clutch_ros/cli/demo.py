@@ -40,7 +40,8 @@ def add_parser(sub) -> None:
     p.add_argument("--quick", action="store_true", help="shorter profile (about 25 s)")
     p.add_argument("--rate", type=float, default=100.0,
                    help="RigState publishing rate of the bridge [Hz] (default 100)")
-    p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
+    p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
+                   help="storage plugin of the bags written (default: mcap)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.set_defaults(func=run)

@@ -31,7 +31,8 @@ def add_parser(sub) -> None:
     p.add_argument("files", nargs="+", metavar="FILE", help="rig CSV or CAN log files")
     p.add_argument("-o", "--output", required=True, metavar="BAG",
                    help="bag to create (a directory of bags for several inputs)")
-    p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
+    p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
+                   help="storage plugin of the bags written (default: mcap)")
     p.add_argument("--format", choices=("auto", "csv", "can"), default="auto",
                    help="input format (default: by suffix; python-can's own CSV needs can)")
     p.add_argument("--period", type=float, default=0.001,

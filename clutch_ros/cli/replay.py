@@ -39,7 +39,8 @@ def add_parser(sub) -> None:
                         "Table 7's 10 rpm parameters)")
     p.add_argument("-o", "--output", metavar="OUT", help="write ClutchEstimate bag(s) here "
                    "(a directory of bags for several inputs)")
-    p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
+    p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
+                   help="storage plugin of the bags written (default: mcap)")
     p.add_argument("--report", metavar="DIR",
                    help="write PNG plots into DIR: per bag the replay and the validation views "
                         "(accuracy, P_diff vs spline force, residual cross-correlation), and the "
