@@ -98,6 +98,17 @@ def counter_gap(previous: int, current: int, modulo: int = 16) -> int:
     return (current - previous - 1) % modulo
 
 
+def _finite(value, what: str) -> float:
+    """Return ``float(value)``; a non-number or NaN/inf raises :class:`EncodeError`."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError) as err:
+        raise EncodeError(f"{what}: not a number: {value!r}") from err
+    if not math.isfinite(number):
+        raise EncodeError(f"{what}: value {number} is not finite")
+    return number
+
+
 def frame_key(arbitration_id: int, is_extended: bool = False) -> int:
     """Return the key identifying a frame: the id, or-ed with :data:`CAN_EFF_FLAG` if 29-bit."""
     return arbitration_id | CAN_EFF_FLAG if is_extended else arbitration_id
@@ -362,12 +373,7 @@ class RigDatabase:
             sig = self._signals.get(sig_name)
             if sig is None or sig_name not in {s.name for s in spec.signals}:
                 raise EncodeError(f"{name}: unknown signal {sig_name!r}")
-            try:
-                number = float(value)
-            except (TypeError, ValueError) as err:
-                raise EncodeError(f"{name}.{sig_name}: not a number: {value!r}") from err
-            if not math.isfinite(number):
-                raise EncodeError(f"{name}.{sig_name}: value {number} is not finite")
+            number = _finite(value, f"{name}.{sig_name}")
             bus_values[sig_name] = number / sig.factor if sig.factor != 1.0 else value
         try:
             data = bytearray(message.encode(bus_values, scaling=True, strict=True))
@@ -451,12 +457,7 @@ class PumpRequestCodec:
         NaN/inf, negative or above ``max_pressure`` (beyond half a resolution step) and
         counters outside 0..15 raise :class:`EncodeError`.
         """
-        try:
-            value = float(pressure)
-        except (TypeError, ValueError) as err:
-            raise EncodeError(f"pump pressure is not a number: {pressure!r}") from err
-        if not math.isfinite(value):
-            raise EncodeError(f"pump pressure {value} Pa is not finite")
+        value = _finite(pressure, "pump pressure")
         if value < 0.0 or value > self.max_pressure + 0.5 * self.resolution:
             raise EncodeError(
                 f"pump pressure {value:.1f} Pa outside [0, {self.max_pressure:.0f}] Pa"

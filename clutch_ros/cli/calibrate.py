@@ -15,7 +15,8 @@ from pathlib import Path
 
 from clutch_ros.errors import ClutchError
 
-__all__ = ["add_parser", "run", "main", "read_calibration"]
+__all__ = ["add_parser", "run", "main", "read_calibration", "add_calibration_options",
+           "calibration_from_args"]
 
 
 def add_parser(sub) -> None:
@@ -86,6 +87,33 @@ def run(args) -> int:
     lines.append(comparison.summary())
     sys.stdout.write("\n".join(lines) + "\n")
     return 0
+
+
+def add_calibration_options(p, used_for: str) -> None:
+    """Add ``--calibration METHOD`` and ``--calibration-file FILE`` to the parser ``p``.
+
+    ``used_for`` completes the help texts (what the calibrated pressures feed).
+    """
+    from clutch_ros.model.calibration import METHODS
+
+    p.add_argument("--calibration", choices=METHODS, default=METHODS[0],
+                   help=f"FlexiForce calibration method for {used_for} (default: "
+                        f"{METHODS[0]}, Eqs. 6-9)")
+    p.add_argument("--calibration-file", metavar="FILE",
+                   help="use this FlexiForce calibration (YAML of 'clutch calibrate -o') "
+                        "instead of calibrating on the bags, e.g. for a single ramp that has "
+                        "no pressure plateaus to calibrate on")
+
+
+def calibration_from_args(args):
+    """Return the calibration ``--calibration-file`` names, or None without one.
+
+    The file's ``--calibration`` method is read (:func:`read_calibration`); without a file
+    the commands calibrate on the bags themselves.
+    """
+    if not args.calibration_file:
+        return None
+    return read_calibration(args.calibration_file, args.calibration)
 
 
 def read_calibration(path, method: str = "same_force"):

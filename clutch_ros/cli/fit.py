@@ -30,13 +30,15 @@ from pathlib import Path
 
 from clutch_ros.errors import ClutchError
 
-__all__ = ["add_parser", "run", "main", "load_runs", "flexiforce_pressures", "flexiforce_voltages"]
+__all__ = ["add_parser", "run", "main", "load_runs", "flexiforce_pressures", "flexiforce_voltages",
+           "check_sensor_count"]
 
 LAWS = ("none", "ff_t", "ff_v", "coulomb")
 
 
 def add_parser(sub) -> None:
     """Register ``clutch fit``."""
+    from clutch_ros.cli.calibrate import add_calibration_options
     from clutch_ros.model.identification import SAMPLE_BUDGET
 
     p = sub.add_parser("fit", help="fit the model to recorded rig data (grey-box)",
@@ -51,12 +53,7 @@ def add_parser(sub) -> None:
     p.add_argument("--fix", action="append", default=[], metavar="KEY",
                    help="keep this parameter at its base value (repeatable), e.g. "
                         "friction.temperature_slope")
-    p.add_argument("--calibration", choices=("same_force", "same_sensor"),
-                   default="same_force", help="FlexiForce calibration for P_diff "
-                   "(default: same_force, Eqs. 6-9)")
-    p.add_argument("--calibration-file", metavar="FILE",
-                   help="use this FlexiForce calibration (YAML of 'clutch calibrate -o') "
-                        "instead of calibrating on the bags")
+    add_calibration_options(p, "the P_diff residual")
     p.add_argument("--no-pdiff", action="store_true",
                    help="fit the torque only, even when FlexiForce voltages are present")
     p.add_argument("--pdiff-weight", type=float, default=None, metavar="W",
@@ -134,9 +131,7 @@ def flexiforce_pressures(rigs, piston_area: float, *, calibration: str = "same_f
         return [None] * len(rigs), info
     widths = {v.shape[1] for v in voltages if v is not None}
     if fixed is not None:
-        if widths != {2 * fixed.sensors_per_lamella}:
-            raise ClutchError(f"the calibration is for {2 * fixed.sensors_per_lamella} "
-                              f"FlexiForce sensors, the bags have {sorted(widths)}")
+        check_sensor_count(fixed, widths)
         info["calibration"] = fixed
         return [None if v is None else _disc_pressures(fixed, v, piston_area)
                 for v in voltages], info
@@ -163,6 +158,16 @@ def flexiforce_pressures(rigs, piston_area: float, *, calibration: str = "same_f
             for v in voltages], info
 
 
+def check_sensor_count(cal, widths, where: str = "") -> None:
+    """Raise :class:`ClutchError` unless every voltage width in ``widths`` is ``cal``'s 2k.
+
+    ``where`` prefixes the message (e.g. ``"<bag>: "``).
+    """
+    if set(widths) != {2 * cal.sensors_per_lamella}:
+        raise ClutchError(f"{where}the calibration is for {2 * cal.sensors_per_lamella} "
+                          f"FlexiForce sensors, the bags have {sorted(widths)}")
+
+
 def _disc_pressures(cal, voltages, piston_area: float):
     est = cal.pressures(voltages, piston_area)
     return est.front, est.rear
@@ -183,6 +188,7 @@ def flexiforce_voltages(rig):
 
 def run(args) -> int:
     """Fit, write the parameter file, print the figures."""
+    from clutch_ros.cli.calibrate import calibration_from_args
     from clutch_ros.model.identification import FitOptions, fit
     from clutch_ros.params_file import load_params, write_params
     from clutch_ros.presets import preset_path
@@ -197,11 +203,7 @@ def run(args) -> int:
     out = Path(args.output)
     if out.is_dir():
         raise ClutchError(f"{out}: is a directory, expected a parameter file name")
-    fixed = None
-    if args.calibration_file:
-        from clutch_ros.cli.calibrate import read_calibration
-
-        fixed = read_calibration(args.calibration_file, args.calibration)
+    fixed = calibration_from_args(args)
     runs, info = load_runs(args.bags, base.pack.piston_area, pdiff=not args.no_pdiff,
                            calibration=args.calibration, fixed=fixed)
     kwargs = {}
@@ -255,7 +257,9 @@ def run(args) -> int:
 
 def _comparison_brief(comparison) -> dict:
     doc = comparison.to_dict()
-    return {k: v for k, v in doc.items() if k not in ("same_force", "same_sensor")}
+    from clutch_ros.model.calibration import METHODS
+
+    return {k: v for k, v in doc.items() if k not in METHODS}
 
 
 def main(argv=None) -> int:

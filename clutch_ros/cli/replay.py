@@ -30,6 +30,8 @@ __all__ = ["add_parser", "run", "replay_bag"]
 
 def add_parser(sub) -> None:
     """Register ``clutch replay``."""
+    from clutch_ros.cli.calibrate import add_calibration_options
+
     p = sub.add_parser("replay", help="run the estimator offline over bags",
                        description=__doc__.split("\n\n")[0])
     p.add_argument("bags", nargs="+", metavar="BAG", help="bags holding RigState messages")
@@ -45,13 +47,7 @@ def add_parser(sub) -> None:
                    help="write PNG plots into DIR: per bag the replay and the validation views "
                         "(accuracy, P_diff vs spline force, residual cross-correlation), and the "
                         "RMSE per sequence")
-    p.add_argument("--calibration", choices=("same_force", "same_sensor"),
-                   default="same_force", help="FlexiForce calibration method for the "
-                   "report's measured P_diff (default: same_force, Eqs. 6-9)")
-    p.add_argument("--calibration-file", metavar="FILE",
-                   help="with --report: use this FlexiForce calibration (YAML of 'clutch "
-                        "calibrate -o') instead of calibrating on the replayed bags, e.g. "
-                        "for a single ramp that has no plateaus to calibrate on")
+    add_calibration_options(p, "the report's measured P_diff (with --report)")
     p.add_argument("--json", action="store_true", help="print a JSON list, one object per bag")
     p.set_defaults(func=run)
 
@@ -84,15 +80,12 @@ def run(args) -> int:
                           "--report DIR too")
     report = None
     if args.report:
+        from clutch_ros.cli.calibrate import calibration_from_args
         from clutch_ros.cli.replay_report import ReplayReport
 
-        fixed = None
-        if args.calibration_file:
-            from clutch_ros.cli.calibrate import read_calibration
-
-            fixed = read_calibration(args.calibration_file, args.calibration)
         report = ReplayReport(Path(args.report), params, params.spline.law,
-                              calibration=args.calibration, fixed_calibration=fixed)
+                              calibration=args.calibration,
+                              fixed_calibration=calibration_from_args(args))
     results = []
     for bag, out in zip(bags, outs):
         start = time.perf_counter()

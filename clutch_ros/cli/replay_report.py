@@ -24,8 +24,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from clutch_ros.errors import ClutchError
-
 __all__ = ["ReplayReport", "plot_replay", "plot_summary"]
 
 
@@ -59,7 +57,7 @@ class ReplayReport:
 
         import numpy as np
 
-        from clutch_ros.cli.fit import flexiforce_voltages
+        from clutch_ros.cli.fit import check_sensor_count, flexiforce_voltages
         from clutch_ros.cli.validation_report import evaluation_from_batch
 
         rig, batch = result.rig, result.batch
@@ -68,11 +66,8 @@ class ReplayReport:
             time=rig.time, actuating_pressure=rig.actuating_pressure, ff_voltages=ff,
             columns={k: v for k, v in rig.columns.items() if k == "ff_voltages.len"})
         v = flexiforce_voltages(volts)
-        fixed = self.fixed_calibration
-        if fixed is not None and v is not None and v.shape[1] != 2 * fixed.sensors_per_lamella:
-            raise ClutchError(f"{result.bag}: the calibration is for "  # before any plot
-                              f"{2 * fixed.sensors_per_lamella} FlexiForce sensors, the bags "
-                              f"have [{v.shape[1]}]")
+        if self.fixed_calibration is not None and v is not None:  # fail before any plot
+            check_sensor_count(self.fixed_calibration, {v.shape[1]}, f"{result.bag}: ")
         paths = plot_replay(result.bag, rig, batch, self.out_dir)
         names = {ev.name for ev, _, _ in self._runs}
         name = Path(result.bag).name or "bag"

@@ -31,11 +31,12 @@ def _inputs():
     return t, seq.actuating_pressure, seq.slip_speed, temp
 
 
-@pytest.mark.parametrize("law", ["none", "ff_t", "ff_v", "coulomb"])
-def test_simulate_equals_step_loop(flexiforce, law):
-    params = flexiforce.with_law(law)
-    t, p, w, temp = _inputs()
-    res = simulate(params, t, p, w, temp)
+def _assert_equals_step_loop(params, res, t, p, w, temp):
+    """Compare ``res`` with reset() + output() + step() per sample; return the loop's model.
+
+    Same kernel; only mu is computed vectorised (may differ in the last bit), so each field
+    agrees to 1e-9 of its largest magnitude.
+    """
     model = PackModel(params)
     model.reset(p[0], temp[0], w[0])
     samples = [model.output(p[0], w[0], temp[0])]
@@ -43,8 +44,16 @@ def test_simulate_equals_step_loop(flexiforce, law):
     for name in FIELDS:
         loop = np.array([getattr(s, name) for s in samples])
         scale = max(np.abs(loop).max(), 1e-300)
-        # same kernel; only mu is computed vectorised (may differ in the last bit)
         assert_allclose(getattr(res, name), loop, rtol=0, atol=1e-9 * scale, err_msg=name)
+    return model
+
+
+@pytest.mark.parametrize("law", ["none", "ff_t", "ff_v", "coulomb"])
+def test_simulate_equals_step_loop(flexiforce, law):
+    params = flexiforce.with_law(law)
+    t, p, w, temp = _inputs()
+    res = simulate(params, t, p, w, temp)
+    _assert_equals_step_loop(params, res, t, p, w, temp)
     assert res.law == law and len(res) == t.size
     assert res.normal_force.shape == (t.size, 8) and res.positions.shape == (t.size, 8)
 
@@ -95,14 +104,7 @@ def test_batch_kernels_equal_step_loop_on_table3(flexiforce, truth, law, slip):
     t, p, w, temp = seq.t, seq.actuating_pressure, seq.slip_speed, seq.lamella_temperature
     batch = PackModel(params)
     res = simulate(params, t, p, w, temp, model=batch)
-    model = PackModel(params)
-    model.reset(p[0], temp[0], w[0])
-    samples = [model.output(p[0], w[0], temp[0])]
-    samples += [model.step(t[k] - t[k - 1], p[k], w[k], temp[k]) for k in range(1, t.size)]
-    for name in FIELDS:
-        loop = np.array([getattr(s, name) for s in samples])
-        scale = max(np.abs(loop).max(), 1e-300)
-        assert_allclose(getattr(res, name), loop, rtol=0, atol=1e-9 * scale, err_msg=name)
+    model = _assert_equals_step_loop(params, res, t, p, w, temp)
     end, ref = batch.state, model.state
     assert_allclose(end.work, ref.work, rtol=1e-9, atol=1e-9 * np.abs(ref.work).max())
     if law == "coulomb":

@@ -2,11 +2,28 @@
 
 from __future__ import annotations
 
+import math
 import time
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+
+
+def rig_state(t: float, pressure: float = 20e5):
+    """Return a valid RigState stamped ``t`` [s]: ``pressure`` [Pa], 40 °C, 10 rpm, 500 N m."""
+    from clutch_msgs.msg import RigState
+
+    from clutch_ros.nodes.common import sec_to_stamp
+
+    msg = RigState()
+    sec_to_stamp(t, msg.header.stamp)
+    msg.actuating_pressure = pressure
+    msg.lamella_temperature = 40.0
+    msg.slip_speed = 10 * 2 * math.pi / 60
+    msg.measured_torque = 500.0
+    msg.has_measured_torque = True
+    return msg
 
 
 class Harness:

@@ -13,25 +13,11 @@ import sys
 import pytest
 
 from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness
+from tests.nodes.rclpy_harness import Harness, rig_state
 
 pytestmark = pytest.mark.ros
 
 PRESET = REPO / "params" / "flexiforce_8.yaml"
-
-
-def _rig_state(t: float, pressure: float = 20e5):
-    from clutch_msgs.msg import RigState
-
-    msg = RigState()
-    msg.header.stamp.sec = int(t)
-    msg.header.stamp.nanosec = int(round((t - int(t)) * 1e9))
-    msg.actuating_pressure = pressure
-    msg.lamella_temperature = 40.0
-    msg.slip_speed = 10 * 2 * math.pi / 60
-    msg.measured_torque = 500.0
-    msg.has_measured_torque = True
-    return msg
 
 
 @pytest.fixture
@@ -66,17 +52,17 @@ def test_estimates_per_sample_and_bad_samples_skipped(estimator):
         valid, bad = [], []
         for i in range(60):
             t = t0 + 0.01 * i
-            pub.publish(_rig_state(t, pressure=5e5 + 5e4 * i))
+            pub.publish(rig_state(t, pressure=5e5 + 5e4 * i))
             valid.append(t)
             if i == 20:
-                nan_msg = _rig_state(t + 0.005)
+                nan_msg = rig_state(t + 0.005)
                 nan_msg.actuating_pressure = math.nan
                 pub.publish(nan_msg)
                 bad.append(t + 0.005)
             if i == 30:
-                pub.publish(_rig_state(t))  # duplicate stamp
+                pub.publish(rig_state(t))  # duplicate stamp
             if i == 40:
-                pub.publish(_rig_state(t - 0.015))  # out of order
+                pub.publish(rig_state(t - 0.015))  # out of order
                 bad.append(t - 0.015)
             h.spin_for(0.004)
         h.spin_until(lambda: len(estimates) >= len(valid), 20.0, "all estimates")

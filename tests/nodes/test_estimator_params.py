@@ -22,28 +22,13 @@ import sys
 import pytest
 
 from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness
+from tests.nodes.rclpy_harness import Harness, rig_state
 
 pytestmark = pytest.mark.ros
 
 PRESET = REPO / "params" / "flexiforce_8.yaml"
 T0 = 1_700_000_000.0  # stamps of the runtime-change test [s]
 DT = 0.01  # sample period [s]
-
-
-def _rig_state(t: float, pressure: float):
-    from clutch_msgs.msg import RigState
-
-    from clutch_ros.nodes.common import sec_to_stamp
-
-    msg = RigState()
-    sec_to_stamp(t, msg.header.stamp)
-    msg.actuating_pressure = pressure
-    msg.lamella_temperature = 40.0
-    msg.slip_speed = 10 * 2 * math.pi / 60
-    msg.measured_torque = 500.0
-    msg.has_measured_torque = True
-    return msg
 
 
 def _start(ros_env, *extra):
@@ -130,7 +115,7 @@ def test_runtime_change_keeps_the_pack_state(estimator):
     mu_old = params.friction.mu_ref
     mu_new = round(1.1 * mu_old, 6)
     # 5 bar, a step to 30 bar at 0.1 s, the change at 0.4 s, then 0.3 s more
-    msgs = [_rig_state(T0 + DT * i, 5e5 if i < 10 else 30e5) for i in range(70)]
+    msgs = [rig_state(T0 + DT * i, 5e5 if i < 10 else 30e5) for i in range(70)]
     before, after = msgs[:40], msgs[40:]
     with Harness() as h:
         pub, estimates, client = _connect(h)
@@ -218,7 +203,7 @@ def test_invalid_changes_are_rejected_with_the_models_reason(estimator):
         # nothing changed, and the node still estimates with its parameters
         assert _get(h, client, "friction.mu_ref").double_value == mu_ref
         assert _get(h, client, "spline.law").string_value == flat["spline.law"]
-        _send(h, pub, estimates, [_rig_state(T0 + DT * i, 20e5) for i in range(5)])
+        _send(h, pub, estimates, [rig_state(T0 + DT * i, 20e5) for i in range(5)])
         assert estimator.poll() is None, "estimator died"
     assert all(e.spline_law == flat["spline.law"] for e in estimates)
     assert all(math.isfinite(e.modelled_torque) for e in estimates)
@@ -251,7 +236,7 @@ def test_sim_time_diagnostics_follow_clock(ros_env):
                     clock.publish(msg)
                     published_ns.add(msg.clock.sec * 1_000_000_000 + msg.clock.nanosec)
                     if samples:
-                        pub.publish(_rig_state(sim["t"], 20e5))
+                        pub.publish(rig_state(sim["t"], 20e5))
                     h.spin_for(0.01)
 
             def mine():
@@ -264,7 +249,7 @@ def test_sim_time_diagnostics_follow_clock(ros_env):
             h.spin_until(lambda: len(mine()) >= 3, 20.0, "three diagnostics")
             h.spin_until(lambda: len(estimates) >= 80, 20.0, "an estimate per sample")
             # a sample 60 s older than /clock is stale on the simulated clock
-            pub.publish(_rig_state(sim["t"] - 60.0, 20e5))
+            pub.publish(rig_state(sim["t"] - 60.0, 20e5))
             tick(30, samples=False)
 
             def stale_seen():
