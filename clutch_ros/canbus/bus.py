@@ -7,8 +7,9 @@
 or a SocketCAN bus-off error frame) or the adapter cannot be opened, it closes the bus and
 reopens it with exponential back-off. A received datagram or frame that is no valid CAN frame
 (:func:`~clutch_ros.canbus.udp.malformed_reason`: not msgpack, an 11-bit identifier above
-0x7FF, a DLC that differs from the data length, ...) is counted by reason and dropped; it never
-takes the link down, since the transport itself is fine. It never raises from :meth:`~can.BusABC.recv` (so a
+0x7FF, a DLC that differs from the data length, ...) is counted by reason and dropped; it
+never takes the link down, since the transport itself is fine. It never raises from
+:meth:`~can.BusABC.recv` (so a
 :class:`can.Notifier` on it never dies), reports every state transition to a callback and
 logs rate-limited (no warning storm).
 

@@ -21,7 +21,7 @@ class FakeClock:
 
 
 def make_gate(db, clock, **kwargs):
-    """A gate whose command stamps share ``clock`` (as a node's stamps share its clock)."""
+    """Return a gate whose command stamps share ``clock`` (as a node's share its clock)."""
     config = PumpGateConfig(**kwargs)
     return PumpCommandGate(clock, config, PumpRequestCodec(db, config.max_pressure),
                            stamp_clock=clock)
