@@ -21,7 +21,7 @@ FF_FRONT_BIT, FF_REAR_BIT, TEMPERATURES_BIT = 1 << 4, 1 << 5, 1 << 2
 
 
 def _temperatures(lamella_raw: int, oil_raw: int = 4000, t: float = 0.0) -> can.Message:
-    """A RigTemperatures frame from raw 16-bit signed values (0.01 degC per bit)."""
+    """Return a RigTemperatures frame of raw 16-bit signed values (0.01 degC per bit)."""
     return can.Message(arbitration_id=0x110, is_extended_id=False, timestamp=t,
                        data=struct.pack("<hhxxxx", lamella_raw, oil_raw))
 
