@@ -128,7 +128,8 @@ class PumpCommandGate:
             self.max_pressure -= self.codec.resolution
         self._clock = clock
         self._stamp_clock = stamp_clock
-        self._last_stamp: float | None = None
+        self._last_stamp: float | None = None  # newest admitted stamp (out-of-order check)
+        self._command_stamp: float | None = None  # stamp of the last admitted command
         self._immediate_used = False  # an immediate frame went out since the last tick
         self._sent: tuple[float, str] | None = None  # (target, reason) of the last frame
         self._counter = 0
@@ -172,6 +173,7 @@ class PumpCommandGate:
         now = float(self._clock())
         if stamp is not None:
             self._last_stamp = stamp
+        self._command_stamp = stamp
         self.commands += 1
         self._last_command = now
         self._watchdog_tripped = False
@@ -229,11 +231,18 @@ class PumpCommandGate:
         return None
 
     def tick(self) -> GateOutput:
-        """Return the periodic frame (call every PumpRequest cycle); checks the watchdog."""
+        """Return the periodic frame (call every PumpRequest cycle); checks the watchdog.
+
+        The watchdog trips when no command was admitted for ``watchdog_timeout`` on
+        ``clock``, or the last admitted command's stamp is older than that on
+        ``stamp_clock`` (a command processed late still expires on time).
+        """
         now = float(self._clock())
         self._immediate_used = False
         if self._last_command is not None and not self._watchdog_tripped:
             silence = now - self._last_command
+            if self._command_stamp is not None:  # a late-processed command expires on time
+                silence = max(silence, float(self._stamp_clock()) - self._command_stamp)
             if silence > self.config.watchdog_timeout:
                 self._watchdog_tripped = True
                 self.watchdog_trips += 1

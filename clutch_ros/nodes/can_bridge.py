@@ -76,6 +76,9 @@ from clutch_ros.nodes.convert import can_frame_to_ros, rig_state_to_ros
 NAME = "can_bridge"
 IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning
 SEND_TIMEOUT = 0.005  # [s] a pump request never blocks the executor longer
+#: pressure_command queue: only the latest command matters, so a flood never queues a
+#: backlog; commands overwritten in it are counted from the publishers' sequence numbers
+COMMAND_DEPTH = 5
 FLUSH_PERIOD = 0.05  # [s] with publish_on: a frame held back by bridge.rate goes out then
 PARAMS = [
     ParamSpec("can.interface", "udp_multicast", "python-can interface (socketcan, vector, "
@@ -149,7 +152,8 @@ class CanBridgeNode(Node):
             self._start_log(cfg["input.log_file"], cfg["input.realtime"])
         else:
             self._sources.topic = self.create_subscription(
-                PressureCommand, "pressure_command", self._on_command, reliable_qos()).topic_name
+                PressureCommand, "pressure_command", self._on_command,
+                reliable_qos(COMMAND_DEPTH)).topic_name
             self.create_timer(cfg["pump.period"], lambda: self._send(self._gate.tick()))
             period = 1.0 / cfg["bridge.rate"]  # with publish_on: only flushes held frames
             self.create_timer(period if self._trigger is None else max(period, FLUSH_PERIOD),
@@ -238,6 +242,7 @@ class CanBridgeNode(Node):
 
     # -- send -----------------------------------------------------------------------------
     def _on_command(self, msg, info) -> None:
+        self._sources.count_sequence(info)
         source = self._sources.check(info)
         if source is not None:
             self._gate.refuse("source", source)
@@ -321,6 +326,23 @@ class CommandSources:
         self._names: dict[bytes, str] = {}
         self._next_refresh = 0.0
         self.publishers: list[str] = []
+        self._sequence: dict[bytes, int] = {}  # publisher GID -> last sequence number
+        #: commands that never reached the callback (overwritten in the queue), counted
+        #: from the gaps in each publisher's sequence numbers
+        self.superseded = 0
+
+    def count_sequence(self, info) -> None:
+        """Count the commands a publisher sent that this subscription never saw."""
+        gid = info.get("publisher_gid") if isinstance(info, dict) else None
+        number = info.get("publication_sequence_number") if isinstance(info, dict) else None
+        if not gid or number is None:
+            return
+        key = bytes(gid["data"])
+        last = self._sequence.get(key)
+        if last is not None and number > last + 1:
+            self.superseded += number - last - 1
+        if len(self._sequence) < 64 or key in self._sequence:  # bounded
+            self._sequence[key] = number
 
     def _refresh(self) -> None:
         infos = self.node.get_publishers_info_by_topic(self.topic)
@@ -350,7 +372,8 @@ class CommandSources:
     def diagnose(self) -> dict:
         """Refresh the table; return the publishers as diagnostic values."""
         self._refresh()
-        return {"command_publishers": ", ".join(self.publishers),
+        return {"commands_superseded": self.superseded,
+                "command_publishers": ", ".join(self.publishers),
                 "command_publisher_count": len(self.publishers),
                 "command_source": self.wanted or "(any)"}
 
