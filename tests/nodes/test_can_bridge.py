@@ -280,6 +280,13 @@ def test_fuzz_through_the_node_and_quiet_idle_bus(tmp_path):
                 "decode_errors_checksum": exp.decode_errors["checksum"]}
     assert {k: int(view.get(k, 0)) for k in expected} == expected
     assert view["link_state"] == "up" and view["disconnects"] == "0"
+    # finding 5: the status stays bounded (it held 7,107 key-values after such a burst)
+    sizes = [len(s.values) for a in diags for s in a.status if s.name == "/can_bridge"]
+    distinct = len(exp.unknown_ids)
+    print(f"\nfuzz burst: {total} frames at {rate:.0f}/s, {distinct} distinct unknown IDs; "
+          f"largest /can_bridge status {max(sizes)} key-values; unknown_ids = "
+          f"{view['unknown_ids']!r}")
+    assert distinct > 1000 and max(sizes) <= 200
     last = states[-1]
     exp.last["RigSpeed"] = final_values
     for name, field, signal in (("RigFast", "actuating_pressure", "ActuatingPressure"),
