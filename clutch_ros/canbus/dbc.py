@@ -37,17 +37,8 @@ from clutch_ros.canbus.errors import DbcError, EncodeError, FrameDecodeError
 from clutch_ros.errors import ConfigError
 
 __all__ = [
-    "CAN_EFF_FLAG",
-    "UNIT_TO_SI",
-    "FrameSpec",
-    "RigDatabase",
-    "SignalSpec",
-    "PumpRequestCodec",
-    "counter_gap",
-    "crc8_sae_j1850",
-    "default_dbc_path",
-    "format_frame_key",
-    "frame_key",
+    "CAN_EFF_FLAG", "UNIT_TO_SI", "FrameSpec", "RigDatabase", "SignalSpec", "PumpRequestCodec",
+    "counter_gap", "crc8_sae_j1850", "default_dbc_path", "format_frame_key", "frame_key",
 ]
 
 #: Flag or-ed into a frame key for 29-bit identifiers (the SocketCAN ``CAN_EFF_FLAG``).
@@ -210,12 +201,9 @@ class RigDatabase:
             # [min, max] in SI, widened by half a resolution step against rounding; a DBC
             # range of [0|0] means "none"
             self._ranges[spec.key] = tuple(
-                (sig.name, sig.minimum - 0.5 * sig.resolution,
-                 sig.maximum + 0.5 * sig.resolution)
-                for sig in spec.signals
-                if sig.minimum is not None and sig.maximum is not None
-                and not sig.minimum == sig.maximum == 0.0
-            )
+                (sig.name, sig.minimum - 0.5 * sig.resolution, sig.maximum + 0.5 * sig.resolution)
+                for sig in spec.signals if sig.minimum is not None and sig.maximum is not None
+                and not sig.minimum == sig.maximum == 0.0)
 
     def _make_spec(self, message: cantools.database.can.Message) -> FrameSpec:
         signals = []
@@ -341,13 +329,11 @@ class RigDatabase:
         out: dict[str, float | int] = dict(values)  # type: ignore[arg-type]
         for name, factor in self._factors[key]:
             out[name] = out[name] * factor
-        if check_range:
-            bad = tuple(name for name, low, high in self._ranges[key]
-                        if not low <= out[name] <= high)
-            if bad:
-                raise FrameDecodeError(
-                    f"{spec.name}: " + ", ".join(f"{n} = {out[n]:g}" for n in bad)
-                    + " outside the DBC range", "range", values=out, signals=bad)
+        bad = check_range and tuple(n for n, lo, hi in self._ranges[key] if not lo <= out[n] <= hi)
+        if bad:
+            text = ", ".join(f"{n} = {out[n]:g}" for n in bad)
+            raise FrameDecodeError(f"{spec.name}: {text} outside the DBC range", "range",
+                                   values=out, signals=bad)
         return out
 
     def decode_message(self, msg: can.Message) -> tuple[FrameSpec, dict[str, float | int]]:
