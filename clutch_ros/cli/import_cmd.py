@@ -1,6 +1,6 @@
 """``clutch import FILE... -o BAG``: rig CSV or Vector ASC/BLF CAN logs -> RigState bags.
 
-CSV: the DESIGN.md columns (units in the header names, converted to SI), one message per row.
+CSV: the README.md columns (units in the header names, converted to SI), one message per row.
 CAN logs (any python-can log format, picked by suffix: .asc, .blf, .log, .trc, .csv of
 python-can ...): decoded through ``params/rig.dbc`` by the same path as the live bridge, one
 RigState per ``--period`` of log time in which a frame arrived (a sample repeating the last
