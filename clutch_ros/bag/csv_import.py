@@ -39,7 +39,8 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from clutch_ros.bag.errors import BagExistsError, CsvError
-from clutch_ros.bag.writer import topic_name, write_rig_states
+from clutch_ros.bag.typestore import topic_name
+from clutch_ros.bag.writer import write_rig_states
 
 __all__ = ["REQUIRED", "UNITS", "ImportSummary", "import_csv"]
 

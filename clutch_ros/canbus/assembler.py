@@ -35,9 +35,9 @@ from dataclasses import dataclass, field
 
 import can
 
+from clutch_ros.canbus.counters import CounterSnapshot, FrameCounters, classify_socketcan_error
 from clutch_ros.canbus.dbc import RigDatabase, counter_gap, frame_key
 from clutch_ros.canbus.errors import FrameDecodeError
-from clutch_ros.canbus.stats import CounterSnapshot, FrameCounters, classify_socketcan_error
 from clutch_ros.errors import ConfigError
 
 __all__ = [

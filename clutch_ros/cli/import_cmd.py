@@ -13,10 +13,16 @@ goes to stderr when it is a terminal; an import that fails deletes its partial b
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from pathlib import Path
 
+from clutch_ros.bag.csv_import import import_csv
+from clutch_ros.bag.typestore import CAN_FRAME, RIG_STATE, can_frame_msg, rig_state_msg
+from clutch_ros.bag.writer import BagWriter
+from clutch_ros.canbus import LogSource, RigDatabase, RigStateAssembler
+from clutch_ros.cli.dispatch import emit_json
 from clutch_ros.errors import ClutchError
 
 __all__ = ["add_parser", "run"]
@@ -100,8 +106,6 @@ def run(args) -> int:
         progress = _Progress(path.name)
         try:
             if kind == "csv":
-                from clutch_ros.bag.csv_import import import_csv
-
                 s = import_csv(path, target, storage=args.storage, progress=progress)
                 results.append({"source": str(path), "bag": str(target), "format": "csv",
                                 "messages": s.messages, "duration_s": s.duration_s,
@@ -115,7 +119,6 @@ def run(args) -> int:
             sys.stderr.write(f"clutch import: warning: {path}: no RigState sample (no rig "
                              "frame of the DBC in the log); the bag holds none\n")
     if args.json:
-        from clutch_ros.cli import emit_json
 
         emit_json(results)
     else:
@@ -141,11 +144,7 @@ class _Tap:
 
 
 def _import_can(path: Path, target: Path, args, progress) -> dict:
-    import math
 
-    from clutch_ros.bag.typestore import CAN_FRAME, RIG_STATE, can_frame_msg, rig_state_msg
-    from clutch_ros.bag.writer import BagWriter
-    from clutch_ros.canbus import LogSource, RigDatabase, RigStateAssembler
 
     source = LogSource(path)
     source.check()

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+from clutch_msgs.msg import CanFrame, RigState
+
 from clutch_ros.nodes.common import sec_to_stamp
 
 __all__ = ["can_frame_msg", "estimate_to_msg", "rig_state_msg"]
@@ -39,8 +41,6 @@ _FIELDS = ("actuating_pressure", "lamella_temperature", "oil_temperature", "inpu
 
 def rig_state_msg(sample, offset: float = 0.0):
     """Return a ``RigState`` of ``sample`` stamped ``sample.stamp + offset`` [s]."""
-    from clutch_msgs.msg import RigState
-
     msg = RigState()
     sec_to_stamp(sample.stamp + offset, msg.header.stamp)
     msg.header.frame_id = "clutch"
@@ -56,8 +56,6 @@ def rig_state_msg(sample, offset: float = 0.0):
 
 def can_frame_msg(frame, offset: float = 0.0):
     """Return a ``CanFrame`` of a python-can frame (payload cut/padded to 8 bytes)."""
-    from clutch_msgs.msg import CanFrame
-
     msg = CanFrame()
     sec_to_stamp(frame.timestamp + offset, msg.header.stamp)
     msg.id, msg.is_rtr = frame.arbitration_id, frame.is_remote_frame

@@ -23,11 +23,10 @@ from clutch_ros.rig.scenario import (
     Scenario,
     ScriptedScenario,
     closed_loop_run,
-    run_offline,
     table3_run,
     table4_run,
 )
-from clutch_ros.rig.simulator import RigSimulator, RunStats
+from clutch_ros.rig.simulator import RigSimulator, RunStats, run_offline
 from clutch_ros.rig.thermal import ThermalModel, ThermalParams
 
 __all__ = [

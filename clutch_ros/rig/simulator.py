@@ -26,17 +26,17 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, fields
+from typing import Any
 
+import numpy as np
+
+from clutch_ros.rig.can_io import RigCanPort
 from clutch_ros.rig.errors import RigConfigError, check_positive
+from clutch_ros.rig.plant import RigPlant, RigSignals
+from clutch_ros.rig.scenario import Scenario
 
-if TYPE_CHECKING:
-    from clutch_ros.rig.can_io import RigCanPort
-    from clutch_ros.rig.plant import RigPlant, RigSignals
-    from clutch_ros.rig.scenario import Scenario
-
-__all__ = ["RigSimulator", "RunStats"]
+__all__ = ["RigSimulator", "RunStats", "run_offline"]
 
 
 @dataclass
@@ -178,3 +178,23 @@ class RigSimulator:
         stats.sim_time = self.time
         stats.frames_sent = (self.port.sent - sent0) if self.port is not None else 0
         return stats
+
+
+def run_offline(plant: Any, scenario: Scenario, dt: float = 1e-3,
+                duration: float | None = None,
+                pressure_source: Callable[[float, Any], float] | None = None
+                ) -> dict[str, np.ndarray]:
+    """Run ``plant`` through ``scenario`` without a bus; return every signal as an array.
+
+    The plant is reset to the scenario's start temperature. Returns ``{RigSignals field:
+    array}`` with one row per step (arrays of arrays become 2-D: ``ff_voltages`` (n, 8),
+    ``normal_force`` (n, N) ...). Closed-loop scenarios need ``pressure_source(t [s], last
+    RigSignals or None) -> Pa``.
+    """
+    rows: list[Any] = []
+    sim = RigSimulator(plant, scenario, None, dt, pressure_source=pressure_source,
+                       on_step=rows.append)
+    sim.run(scenario.duration if duration is None else duration, realtime=False)
+    if not rows:
+        raise RigConfigError("the run is shorter than one step")
+    return {f.name: np.array([getattr(r, f.name) for r in rows]) for f in fields(rows[0])}
