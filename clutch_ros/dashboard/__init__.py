@@ -1,6 +1,6 @@
 """The live dashboard: the clutch topics on a Foxglove WebSocket server (foxglove-sdk).
 
-Layer: above :mod:`clutch_ros.bag` (typestore, reader, offline replay), below the nodes; no
+Layer: above :mod:`clutch_ros.offline` (the replay) and :mod:`clutch_ros.bag`, below the nodes; no
 rclpy here. The live ``dashboard`` node (:mod:`clutch_ros.nodes.dashboard`) forwards the bytes
 ROS delivers; ``clutch dashboard --bag`` plays a bag (:class:`BagStream`, :class:`BagPlayer`).
 

@@ -4,7 +4,7 @@
 of the bag on a topic the dashboard serves (the bag's raw bytes, never re-serialized). When
 the bag holds ``RigState`` but no ``/clutch_estimate`` (a rig recording), the estimator's
 model is run over the RigState stream first with the offline replay
-(:func:`clutch_ros.bag.replay.replay_bag`, identical to the live estimator node) and each
+(:func:`clutch_ros.offline.replay.replay_bag`, identical to the live estimator node) and each
 published estimate is inserted right after its input sample, serialized exactly as
 ``clutch replay -o`` writes it (:func:`estimate_frames`): same header stamp and frame id,
 same bytes.
@@ -37,15 +37,17 @@ def estimate_frames(result: Any, block: int = _BLOCK) -> Iterator[tuple[int, int
     """Yield ``(row, stamp_ns, cdr)`` for each ClutchEstimate ``clutch replay -o`` writes.
 
     Args:
-        result: a :class:`~clutch_ros.bag.replay.ReplayResult`.
+        result: a :class:`~clutch_ros.offline.replay.ReplayResult`.
         block: messages serialized per numpy block.
 
     ``row`` indexes the replay's RigState arrays (the input sample), ``stamp_ns`` is its header
-    stamp [ns since epoch]; the bytes equal those :func:`~clutch_ros.bag.replay.write_estimates`
+    stamp [ns since epoch]; the bytes equal those :func:`~clutch_ros.offline.replay.write_estimates`
     stores for that sample.
 
     """
-    serializer, rows, stamps, columns = _estimate_serializer(result)
+    from clutch_ros.offline.replay import estimate_layout
+
+    serializer, rows, stamps, columns = estimate_layout(result)
     size = serializer.size
     for first in range(0, len(rows), block):
         last = min(first + block, len(rows))
@@ -53,25 +55,6 @@ def estimate_frames(result: Any, block: int = _BLOCK) -> Iterator[tuple[int, int
         data = serializer.serialize_stamped(stamps[first:last], part).tobytes()
         for i in range(last - first):
             yield int(rows[first + i]), int(stamps[first + i]), data[i * size : (i + 1) * size]
-
-
-def _estimate_serializer(result: Any) -> tuple[Any, np.ndarray, np.ndarray, dict[str, Any]]:
-    """Return the layout, rows, header stamps [ns] and columns ``write_estimates`` writes."""
-    from clutch_ros.bag.arrays import TemplateSerializer
-    from clutch_ros.bag.replay import ESTIMATE_FIELDS, _first_frame_id, published_rows
-
-    batch = result.batch
-    rows = np.flatnonzero(published_rows(batch))
-    n_lamellas = batch.lamella_normal_force.shape[1]
-    serializer = TemplateSerializer(
-        CLUTCH_ESTIMATE,
-        frame_id=_first_frame_id(result),
-        spline_law=batch.spline_law,
-        lamella_normal_force=np.zeros(n_lamellas),
-        spline_friction_force=np.zeros(n_lamellas),
-    )
-    columns = {name: getattr(batch, name)[rows] for name in ESTIMATE_FIELDS}
-    return serializer, rows, np.asarray(result.rig.stamp_ns, dtype=np.int64)[rows], columns
 
 
 class BagStream:
@@ -128,7 +111,7 @@ class BagStream:
             est_topic in wanted and est_topic not in self.topics and rig_topic in self.topics
         )
         if self.computed:
-            from clutch_ros.bag.replay import published_rows, replay_bag
+            from clutch_ros.offline.replay import published_rows, replay_bag
 
             result = replay_bag(self.path, params, topic=rig_topic)
             self._estimates = result

@@ -16,6 +16,7 @@ published, bag position [s], rate, how late the last message went out [s].
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 from typing import Any
@@ -146,10 +147,14 @@ class BagPlayer:
 
     def _play_once(self) -> None:
         start_ns = self.stream.start_ns
-        wall0 = time.monotonic()
         scale = 1e-9 / self.rate
         publish = self.server.publish
-        for time_ns, topic, data in self.stream:
+        messages = iter(self.stream)
+        first = next(messages, None)  # opens the bag: not part of the schedule
+        if first is None:
+            return
+        wall0 = time.monotonic()
+        for time_ns, topic, data in itertools.chain([first], messages):
             due = wall0 + (time_ns - start_ns) * scale
             now = time.monotonic()
             while now < due:
