@@ -24,6 +24,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/params", sorted(glob("params/*.yaml") + glob("params/*.dbc"))),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*.launch.xml"))),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
