@@ -26,7 +26,13 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from clutch_ros.bag.writer import BagWriter
-from clutch_ros.nodes.common import Diagnostics, ParamSpec, declare_params, run_node
+from clutch_ros.nodes.common import (
+    HARDWARE_ID_PARAM,
+    Diagnostics,
+    ParamSpec,
+    declare_params,
+    run_node,
+)
 from clutch_ros.nodes.loss_tracker import LossTracker, format_counts
 
 NAME = "recorder"
@@ -40,13 +46,18 @@ DEFAULT_TOPICS = {
 }
 PARAMS = [
     ParamSpec("recorder.output", "", "bag directory to create (must not exist); empty: "
-              "runs/rec-YYYYmmdd-HHMMSS in the working directory"),
-    ParamSpec("recorder.storage", "mcap", "storage format", choices=("mcap", "sqlite3")),
+              "runs/rec-YYYYmmdd-HHMMSS in the working directory; read-only: the bag is "
+              "opened at start", read_only=True),
+    ParamSpec("recorder.storage", "mcap", "storage format; read-only: the bag is opened at "
+              "start", choices=("mcap", "sqlite3"), read_only=True),
     ParamSpec("recorder.topics", list(DEFAULT_TOPICS), "topics to record (relative names of "
-              "the clutch topics)"),
+              "the clutch topics); read-only: subscriptions and bag connections are made at "
+              "start", read_only=True),
     ParamSpec("recorder.queue_depth", 10000, "subscription queue of best-effort topics "
-              "(rig_state): samples a burst may run ahead of the recorder", "messages",
-              10, 1000000),
+              "(rig_state): samples a burst may run ahead of the recorder; read-only: a DDS "
+              "reader's history depth is fixed when it is created", "messages",
+              10, 1000000, read_only=True),
+    HARDWARE_ID_PARAM,
 ]
 
 
