@@ -99,7 +99,7 @@ class LogThrottle:
 
 
 def sensor_qos():
-    """Return the sensor-data QoS profile (best effort, shallow): used for ``rig_state``."""
+    """Return the sensor-data QoS profile (best effort, depth 5), for latest-sample readers."""
     return qos_profile_sensor_data
 
 
