@@ -21,17 +21,17 @@ bit  group               frame              required   RigState fields
 7    ``torque_request``   TorqueRequest      no         torque_request
 ===  ==================  =================  =========  ==================================
 
-A group fed by several frames (a rig DBC may put pressure and torque in two messages) is as
-old as its oldest frame and stale while one of them is missing; a group the map leaves
-unmapped is never stale. A group is stale when it is older than its maximum age (default: 5 cycle times, at least
-10 ms: 10 ms for 1 ms frames, 50 ms for 10 ms frames, 500 ms for RigTemperatures), when it
-is required and was never received, when its newest frame held a value outside the DBC
-signal's range (that frame is counted as decode error ``range`` and its values are not used:
-the sample keeps the group's last valid values, flagged), or when a field it fills is NaN
-because it never arrived while a sibling did (``ff_voltages`` with only the rear FlexiForce
-frame: the front group is flagged). So every non-finite value of a sample is flagged, and
-every flagged group's values are either the last valid ones or NaN. Optional groups never
-received and without a sibling are not stale; their arrays stay empty.
+A group fed by several frames (a rig DBC may put pressure and torque in two messages) is as old
+as its oldest frame and stale while one of them is missing; a group the map leaves unmapped is
+never stale. A group is stale when it is older than its maximum age (default: 5 cycle times, at
+least 10 ms: 10 ms for 1 ms frames, 50 ms for 10 ms frames, 500 ms for RigTemperatures), when it
+is required and was never received, when its newest frame held a value outside the DBC signal's
+range (that frame is counted as decode error ``range`` and its values are not used: the sample
+keeps the group's last valid values, flagged), or when a field it fills is NaN because it never
+arrived while a sibling did (``ff_voltages`` with only the rear FlexiForce frame: the front
+group is flagged). So every non-finite value of a sample is flagged, and every flagged group's
+values are either the last valid ones or NaN. Optional groups never received and without a
+sibling are not stale; their arrays stay empty.
 
 Data path: :meth:`RigStateAssembler.feed` decodes a frame and writes its values straight into
 the live sample (one dict lookup for the frame key, no re-assembly);

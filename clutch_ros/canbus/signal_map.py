@@ -219,5 +219,9 @@ class SignalMap:
             writes.setdefault(frame.key, []).append(
                 Write(key, field, index, entry.signal, mult, entry.offset))
         request = self.entries["pump_request"]
-        pump = PumpRequestCodec(db, message=request.message, pressure=request.signal)
+        try:
+            pump = PumpRequestCodec(db, message=request.message, pressure=request.signal)
+        except DbcError as err:
+            raise DbcError(f"signal map: map.pump_request = {self.specs['pump_request']!r}: "
+                           f"{err}") from None
         return ResolvedMap({k: tuple(v) for k, v in writes.items()}, messages, pump)

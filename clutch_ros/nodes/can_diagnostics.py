@@ -19,7 +19,23 @@ from __future__ import annotations
 
 import time
 
-__all__ = ["MAX_VALUES", "bridge_status"]
+__all__ = ["MAX_VALUES", "SOFTWARE_BUSES", "bridge_status", "hardware_id"]
+
+#: python-can interfaces without hardware: here they carry the simulated rig (rig_sim)
+SOFTWARE_BUSES = ("udp_multicast", "virtual")
+
+
+def hardware_id(params) -> str:
+    """Return the bridge's diagnostics ``hardware_id`` from its parameters.
+
+    ``interface:channel`` (``socketcan:can0``); ``simulated rig (interface:channel)`` on a
+    software bus (:data:`SOFTWARE_BUSES`, where ``rig_sim`` speaks, the same id it reports);
+    ``log:PATH`` when replaying ``input.log_file``.
+    """
+    if params.get("input.log_file"):
+        return f"log:{params['input.log_file']}"
+    bus = f"{params['can.interface']}:{params['can.channel']}"
+    return f"simulated rig ({bus})" if params["can.interface"] in SOFTWARE_BUSES else bus
 
 #: Most key/values one status carries (a guard; the values are bounded by construction).
 MAX_VALUES = 200
