@@ -1,6 +1,7 @@
-"""The signal map: a rig's own DBC (other names, IDs, byte orders, units, scalings) gives the
-same RigState values as params/rig.dbc for the same physical values; bad maps fail with one
-line naming the missing message or signal.
+"""The signal map: a rig's own DBC gives the same RigState values as params/rig.dbc.
+
+Same physical values, other names, IDs, byte orders, units and scalings; bad maps fail with
+one line naming the missing message or signal.
 
 ``tests/canbus/data/foreign_rig.dbc`` differs from ``params/rig.dbc`` in every message and
 signal name and identifier (one 29-bit), uses Motorola byte order for two signals, kPa, kNm,
@@ -32,7 +33,7 @@ PHYSICAL = {"actuating_pressure": 20.5e5, "measured_torque": 456.7, "input_speed
 
 
 def foreign_map() -> SignalMap:
-    """The map of foreign_rig.dbc, read from its ROS parameter file."""
+    """Return the map of foreign_rig.dbc, read from its ROS parameter file."""
     return SignalMap({k.removeprefix("map."): v for k, v in load_flat(FOREIGN_MAP).items()})
 
 
@@ -66,8 +67,11 @@ def rig_frames(db, t):
 
 
 def foreign_frames(db, t):
-    """foreign_rig.dbc frames carrying PHYSICAL at ``t`` [s] (values in its SI table units:
-    Pa, N m, V, A, rad/s; the plate temperature in kelvin, a unit outside the table)."""
+    """Return foreign_rig.dbc frames carrying PHYSICAL at ``t`` [s].
+
+    Values in its SI table units (Pa, N m, V, A, rad/s); the plate temperature in kelvin, a
+    unit outside the table.
+    """
     p, mk = PHYSICAL, db.make_message
     return [
         mk("ClutchFast", {"PistonPress": p["actuating_pressure"],
