@@ -79,7 +79,7 @@ from clutch_ros.nodes.can_bridge_params import (
     gate_config,
     signal_specs,
 )
-from clutch_ros.nodes.can_diagnostics import bridge_status, hardware_id
+from clutch_ros.nodes.can_diagnostics import hardware_id, node_status
 from clutch_ros.nodes.command_sources import CommandSources
 from clutch_ros.nodes.common import (
     HARDWARE_ID_PARAM,
@@ -386,29 +386,7 @@ class CanBridgeNode(LifecycleNode):
 
     # -- health ---------------------------------------------------------------------------
     def _diagnose(self):
-        if self._assembler is None:
-            return "OK", self._state, {"lifecycle_state": self._state}
-        if self._bus is not None and self._active:  # idle bus: one warning, one info back
-            idle = time.monotonic() - self._last_new
-            if idle > IDLE_TIMEOUT and not self._idle_warned:
-                self._idle_warned = True
-                self.get_logger().warning(f"no new rig frames for {idle:.1f} s; rig_state "
-                                          "paused")
-            elif idle <= IDLE_TIMEOUT and self._idle_warned:
-                self._idle_warned = False
-                self.get_logger().info("rig frames again; rig_state resumed")
-        extra = {"lifecycle_state": self._state, "rig_state_published": self._published,
-                 "stale_samples": self._stale_reports, "stale_groups": ", ".join(
-                     self._stale or []), "foreign_pump_requests": self._foreign_requests}
-        if self._source is None:
-            extra.update(self._sources.diagnose())
-        else:
-            extra.update(log_file=str(self._source.path), log_frames=self._source.frames_read,
-                         log_done=self._log_thread is not None
-                         and not self._log_thread.is_alive())
-        level, message, values = bridge_status(self._assembler, self._bus, self._gate,
-                                               self._pacer.fallback, extra)
-        return level, (message if self._active else f"{self._state}; {message}"), values
+        return node_status(self, IDLE_TIMEOUT)
 
 
 def main(args=None) -> int:
