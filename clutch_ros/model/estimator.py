@@ -12,7 +12,8 @@ Per sample:
    thermal state from the modelled slip power (``thermal.*``; it restarts at
    ``thermal.oil_temperature`` when the estimator initialises), so μ(T) follows heating; a
    measured temperature always wins. The stamp must be later than the last accepted one
-   (:class:`OutOfOrderSample`, :class:`DuplicateSample`). A rejected sample leaves the estimator exactly as it was.
+   (:class:`OutOfOrderSample`, :class:`DuplicateSample`). A rejected sample leaves the
+   estimator exactly as it was.
 2. Time: dt = stamp − last accepted stamp. The first sample, and any sample after a gap
    longer than ``max_gap_s`` (default 1 s; e.g. a paused bag or a dropped link), initialise
    the pack to the static equilibrium at the sample's pressure with no spline force and the
