@@ -88,8 +88,9 @@ def test_passive_laws_physics(flexiforce, law, name):
     #    more than the piston force while it relaxes, and coulomb keeps it: Hypothesis 1(c).)
     f_act = seq.actuating_pressure * params.pack.piston_area
     const = np.zeros(len(seq.t), dtype=bool)
+    highest = np.maximum.accumulate(seq.actuating_pressure)
     const[1:] = ((np.diff(seq.actuating_pressure) == 0.0) & (f_act[1:] > 0.0)
-                 & (seq.actuating_pressure[1:] >= np.maximum.accumulate(seq.actuating_pressure)[1:]))
+                 & (seq.actuating_pressure[1:] >= highest[1:]))
     assert (res.normal_force[const].max(axis=1) <= 1.01 * f_act[const]).all()
     # 4. one second after the release, below 1 % of the peak torque
     release = seq.active[1]
@@ -114,8 +115,10 @@ def test_printed_laws_are_not_passive(flexiforce):
 
 
 def test_energy_balance_of_held_printed_law_still_closes(flexiforce):
-    """The balance itself is law-independent: ff_v_printed holds its force, so it closes too
-    (with some friction work negative: energy put into the pack by the law)."""
+    """The balance itself is law-independent: ff_v_printed holds its force, so it closes too.
+
+    (Some of its friction work is negative: energy put into the pack by the law.)
+    """
     params = flexiforce.with_law("ff_v_printed")
     seq = SEQUENCES["t3_inc_step"]
     res = _run(params, seq)
