@@ -9,7 +9,8 @@ from tests.conftest import REPO
 
 def test_ruff_clean():
     ruff = Path(sys.executable).with_name("ruff")
-    done = subprocess.run([str(ruff), "check", "--no-cache", "clutch_ros", "tests"], cwd=REPO,
+    done = subprocess.run([str(ruff), "check", "--no-cache", "clutch_ros", "tests", "benchmarks",
+                           "tools"], cwd=REPO,
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-5000:] + done.stderr[-2000:]
 

@@ -30,7 +30,7 @@ DEFAULT_ROOT = REPO / "tests" / "data" / "golden"
 
 
 def _diffs(root: Path, results: dict) -> list[str]:
-    from clutch_ros.bag import golden
+    from clutch_ros.offline import golden
 
     if not (root / "expected.json").exists():
         return [f"{root}: no expected.json yet"]
@@ -73,10 +73,10 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np
     import scipy
 
-    from clutch_ros.bag import golden
-    from clutch_ros.bag.simrun import GOLDEN_RUNS
-    from clutch_ros.params_file import load_flat, load_params
-    from clutch_ros.presets import preset_path
+    from clutch_ros.config.params_file import load_flat, load_params
+    from clutch_ros.config.presets import preset_path
+    from clutch_ros.offline import golden
+    from clutch_ros.offline.rig_runs import GOLDEN_RUNS
 
     names = args.runs or list(GOLDEN_RUNS)
     unknown = sorted(set(names) - set(GOLDEN_RUNS))

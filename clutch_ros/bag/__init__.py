@@ -17,7 +17,7 @@ Modules:
     simrun      simulated rig runs as RigState bags (``simulate_run``, ``write_run``)
     golden      golden regression data (``tools/make_golden.py``, tests/bag/test_golden.py)
     errors      ``BagError`` and its subclasses
-    bench       ``python -m clutch_ros.bag.bench``: read and offline replay throughput on a
+    bench       ``python -m benchmarks.bag_replay``: read and offline replay throughput on a
                 generated one-hour 1 kHz bag
 
 Importing this package imports nothing heavy; import the modules you need.

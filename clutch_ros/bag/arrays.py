@@ -16,17 +16,17 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
+from rosbags.interfaces import Nodetype
 
 from clutch_ros.bag.columns import _PRIM, ColumnDecoder, CorruptMessageError
 from clutch_ros.bag.diagnose import blame_file
 from clutch_ros.bag.errors import BagCorruptError, BagError, MessageFieldError
-from clutch_ros.bag.typestore import Typestore, clutch_typestore, make_msg
-
-if TYPE_CHECKING:
-    from clutch_ros.bag.writer import BagWriter
+from clutch_ros.bag.reader import BagReader
+from clutch_ros.bag.typestore import Typestore, clutch_typestore, make_msg, topic_name
+from clutch_ros.bag.writer import BagWriter
 
 __all__ = ["TemplateSerializer", "read_columns", "write_columns"]
 
@@ -178,9 +178,6 @@ def read_columns(
             everything :meth:`~clutch_ros.bag.reader.BagReader.messages` raises.
 
     """
-    from clutch_ros.bag.reader import BagReader
-    from clutch_ros.bag.writer import topic_name
-
     with BagReader(path, store=store) as bag:
         name = topic_name(topic)
         conns = bag._select(name)
@@ -214,7 +211,6 @@ def read_columns(
 
 
 def _strings(store: Typestore, typename: str, msg: Any, prefix: str = "") -> dict[str, str]:
-    from rosbags.interfaces import Nodetype
 
     out: dict[str, str] = {}
     for name, (kind, args) in store.fielddefs[typename][1]:

@@ -32,7 +32,6 @@ from typing import Any, NamedTuple
 from rosbags.interfaces import Connection, Qos
 from rosbags.rosbag2 import Reader
 
-from clutch_ros.bag.columns import ColumnDecoder
 from clutch_ros.bag.diagnose import (
     blame_file,
     connection_qos,
@@ -48,18 +47,14 @@ from clutch_ros.bag.errors import (
     BagNotFoundError,
     UnknownTypeError,
 )
-from clutch_ros.bag.rig_states import RigStateArrays, mcap_files, read_fast, read_via_rosbags
-from clutch_ros.bag.typestore import RIG_STATE, Typestore, clutch_typestore
-from clutch_ros.bag.writer import topic_name
+from clutch_ros.bag.typestore import Typestore, clutch_typestore, topic_name
 
 __all__ = [
     "BagMessage",
     "BagReader",
-    "RigStateArrays",
     "TopicInfo",
     "check_bag",
     "open_bag",
-    "read_rig_states",
 ]
 
 
@@ -363,58 +358,3 @@ def check_bag(
                 actual=counts.get(topic, 0),
             )
     return counts
-
-
-def read_rig_states(
-    path: str | Path,
-    topic: str | None = None,
-    *,
-    store: Typestore | None = None,
-    batch: int = 65536,
-    fast: bool = True,
-) -> RigStateArrays:
-    """Read every ``RigState`` of a bag topic into numpy arrays, fast (no message objects).
-
-    Uncompressed MCAP bags whose metadata.yaml agrees with the storage are scanned directly
-    (:mod:`~clutch_ros.bag.fastmcap`) after rosbags opened them; other bags are read through
-    rosbags (:meth:`BagReader.messages`). Both decode the CDR bytes with numpy, order messages
-    by bag timestamp as rosbags does, and check the count the bag declares.
-
-    Args:
-        path: bag directory or storage file.
-        topic: the topic; default: the bag's only topic of type RigState.
-        store: typestore.
-        batch: messages decoded per numpy batch (rosbags path).
-        fast: allow the direct MCAP scan.
-
-    Raises:
-        BagError: no (or more than one) RigState topic; plus everything :class:`BagReader`
-            raises (including the count check).
-
-    """
-    with BagReader(path, store=store) as bag:
-        if topic is None:
-            found = [t for t, info in bag.topics.items() if info.typename == RIG_STATE]
-            if len(found) != 1:
-                raise BagError(
-                    bag.path,
-                    f"expected one {RIG_STATE} topic, found {found or 'none'}; pass the topic",
-                )
-            topic = found[0]
-        topic = topic_name(topic)
-        for conn in bag._select(topic):
-            if conn.msgtype != RIG_STATE:
-                raise BagError(bag.path, f"topic {topic} has type {conn.msgtype}, not RigState")
-            bag._check_type(conn)
-        try:
-            decoder: ColumnDecoder | None = ColumnDecoder(bag.store, RIG_STATE)
-        except ValueError:
-            decoder = None
-        files = mcap_files(bag) if fast and decoder is not None else None
-        if files is not None and storage_issues(bag.path, bag.reader.connections):
-            files = None  # let rosbags read it, so the outcome is the checked reader's
-        if files is not None and decoder is not None:
-            columns, stamps = read_fast(bag, topic, decoder, files)
-        else:
-            columns, stamps = read_via_rosbags(bag, topic, decoder, batch)
-        return RigStateArrays(bag.path, topic, columns, stamps)

@@ -1,4 +1,4 @@
-"""RigState bags as numpy columns: the machinery behind ``reader.read_rig_states``.
+"""RigState bags as numpy columns: :func:`read_rig_states` and its two read paths.
 
 Two ways to get the raw CDR bytes of one topic, both decoded in bulk with numpy by
 :class:`~clutch_ros.bag.columns.ColumnDecoder`:
@@ -14,20 +14,18 @@ Both check the number of messages against the count the bag declares.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from clutch_ros.bag.columns import ColumnDecoder, CorruptMessageError, columns_slow
-from clutch_ros.bag.diagnose import blame_file, load_metadata, storage_files
-from clutch_ros.bag.errors import BagCorruptError, BagCountMismatchError
+from clutch_ros.bag.diagnose import blame_file, load_metadata, storage_files, storage_issues
+from clutch_ros.bag.errors import BagCorruptError, BagCountMismatchError, BagError
 from clutch_ros.bag.fastmcap import scan_chunks
-from clutch_ros.bag.typestore import RIG_STATE
+from clutch_ros.bag.reader import BagReader
+from clutch_ros.bag.typestore import RIG_STATE, Typestore, topic_name
 
-if TYPE_CHECKING:
-    from clutch_ros.bag.reader import BagReader
-
-__all__ = ["ColumnSink", "RigStateArrays", "mcap_files", "read_fast", "read_via_rosbags"]
+__all__ = ["ColumnSink", "RigStateArrays", "mcap_files", "read_fast", "read_rig_states",
+           "read_via_rosbags"]
 
 
 class RigStateArrays:
@@ -217,3 +215,58 @@ def read_via_rosbags(
     if raws or not done:
         flush()
     return sink.result(empty[0] if empty else {}), np.concatenate(stamps)
+
+
+def read_rig_states(
+    path: str | Path,
+    topic: str | None = None,
+    *,
+    store: Typestore | None = None,
+    batch: int = 65536,
+    fast: bool = True,
+) -> RigStateArrays:
+    """Read every ``RigState`` of a bag topic into numpy arrays, fast (no message objects).
+
+    Uncompressed MCAP bags whose metadata.yaml agrees with the storage are scanned directly
+    (:mod:`~clutch_ros.bag.fastmcap`) after rosbags opened them; other bags are read through
+    rosbags (:meth:`BagReader.messages`). Both decode the CDR bytes with numpy, order messages
+    by bag timestamp as rosbags does, and check the count the bag declares.
+
+    Args:
+        path: bag directory or storage file.
+        topic: the topic; default: the bag's only topic of type RigState.
+        store: typestore.
+        batch: messages decoded per numpy batch (rosbags path).
+        fast: allow the direct MCAP scan.
+
+    Raises:
+        BagError: no (or more than one) RigState topic; plus everything :class:`BagReader`
+            raises (including the count check).
+
+    """
+    with BagReader(path, store=store) as bag:
+        if topic is None:
+            found = [t for t, info in bag.topics.items() if info.typename == RIG_STATE]
+            if len(found) != 1:
+                raise BagError(
+                    bag.path,
+                    f"expected one {RIG_STATE} topic, found {found or 'none'}; pass the topic",
+                )
+            topic = found[0]
+        topic = topic_name(topic)
+        for conn in bag._select(topic):
+            if conn.msgtype != RIG_STATE:
+                raise BagError(bag.path, f"topic {topic} has type {conn.msgtype}, not RigState")
+            bag._check_type(conn)
+        try:
+            decoder: ColumnDecoder | None = ColumnDecoder(bag.store, RIG_STATE)
+        except ValueError:
+            decoder = None
+        files = mcap_files(bag) if fast and decoder is not None else None
+        if files is not None and storage_issues(bag.path, bag.reader.connections):
+            files = None  # let rosbags read it, so the outcome is the checked reader's
+        if files is not None and decoder is not None:
+            columns, stamps = read_fast(bag, topic, decoder, files)
+        else:
+            columns, stamps = read_via_rosbags(bag, topic, decoder, batch)
+        return RigStateArrays(bag.path, topic, columns, stamps)

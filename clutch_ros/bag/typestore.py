@@ -27,8 +27,10 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 from rosbags.typesys.store import Typestore
 
 from clutch_ros.bag.errors import BagError, MessageFieldError, UnknownTypeError
+from clutch_ros.errors import ConfigError
 
 __all__ = [
+    "topic_name",
     "BASE_STORE",
     "CAN_FRAME",
     "CLOCK",
@@ -326,3 +328,17 @@ def can_frame_msg(
     """Build a ``CanFrame``; ``data`` (<= 8 bytes) is zero padded, ``dlc`` defaults to len."""
     fields.setdefault("dlc", len(data))
     return make_msg(CAN_FRAME, stamp_ns, frame_id=frame_id, id=can_id, data=data, **fields)
+
+def topic_name(name: str, namespace: str = "/") -> str:
+    """Return the absolute topic name rosbag2 stores: ``rig_state`` -> ``/rig_state``.
+
+    A relative ``name`` is resolved in ``namespace`` (``/rig1`` -> ``/rig1/rig_state``);
+    an absolute one is returned unchanged.
+    """
+    name = name.strip()
+    if not name or name in {"/", "~"}:
+        raise ConfigError(f"invalid topic name {name!r}")
+    if name.startswith("/"):
+        return name
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    return f"{ns}/{name}"

@@ -47,6 +47,7 @@ from rosbags.interfaces import (
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
 
 from clutch_ros.bag.errors import BagError, BagExistsError, MessageFieldError, UnknownTypeError
+from clutch_ros.bag.reader import check_bag
 from clutch_ros.bag.typestore import (
     CAN_FRAME,
     CLUTCH_ESTIMATE,
@@ -56,6 +57,7 @@ from clutch_ros.bag.typestore import (
     Typestore,
     clutch_typestore,
     rig_state_msg,
+    topic_name,
 )
 from clutch_ros.errors import ConfigError
 
@@ -69,7 +71,6 @@ __all__ = [
     "BagWriter",
     "make_qos",
     "storage_plugin",
-    "topic_name",
     "write_rig_states",
 ]
 
@@ -125,20 +126,6 @@ def storage_plugin(storage: str) -> StoragePlugin:
     except KeyError:
         raise ConfigError(f"unknown bag storage {storage!r}; use one of: mcap, sqlite3") from None
 
-
-def topic_name(name: str, namespace: str = "/") -> str:
-    """Return the absolute topic name rosbag2 stores: ``rig_state`` -> ``/rig_state``.
-
-    A relative ``name`` is resolved in ``namespace`` (``/rig1`` -> ``/rig1/rig_state``);
-    an absolute one is returned unchanged.
-    """
-    name = name.strip()
-    if not name or name in {"/", "~"}:
-        raise ConfigError(f"invalid topic name {name!r}")
-    if name.startswith("/"):
-        return name
-    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
-    return f"{ns}/{name}"
 
 
 class BagWriter:
@@ -254,7 +241,6 @@ class BagWriter:
         finally:
             self.closed = True
         if self.verify:
-            from clutch_ros.bag.reader import check_bag  # lazy: reader imports this module
 
             check_bag(self.path, expected=self.written)
         return dict(self.written)

@@ -12,18 +12,18 @@ Modules:
   receive buffer of the socket.
 * :mod:`~clutch_ros.canbus.assembler` -- :class:`RigStateAssembler` (a ``can.Listener``)
   and :class:`RigSample` (one RigState in SI units, with stale mask).
-* :mod:`~clutch_ros.canbus.pump` -- :class:`PumpCommandGate` (PressureCommand -> PumpRequest,
+* :mod:`~clutch_ros.canbus.pump_gate` -- :class:`PumpCommandGate` (PressureCommand -> PumpRequest,
   clamp, rate limit, watchdog).
 * :mod:`~clutch_ros.canbus.logsource` -- :class:`LogSource` (ASC/BLF/any python-can log).
-* :mod:`~clutch_ros.canbus.stats` -- frame counters, rates, rate limiter, RigState pacer.
+* :mod:`~clutch_ros.canbus.counters` -- frame counters, rates, rate limiter, RigState pacer.
 * :mod:`~clutch_ros.canbus.errors` -- :class:`CanError` and its subclasses.
-* :mod:`~clutch_ros.canbus.bench` -- ``python -m clutch_ros.canbus.bench`` (receive path).
-* :mod:`~clutch_ros.canbus.node_bench` -- ``python -m clutch_ros.canbus.node_bench``: the
+* :mod:`~benchmarks.can_decode` -- ``python -m benchmarks.can_decode`` (receive path).
+* :mod:`~benchmarks.can_bridge_node` -- ``python -m benchmarks.can_bridge_node``: the
   can_bridge node process against a bare python-can loop (the one module here that starts
   ROS, and only when run).
 """
 
-from clutch_ros.canbus.assembler import RigSample, RigStateAssembler
+from clutch_ros.canbus.assembler import RigStateAssembler
 from clutch_ros.canbus.bus import BusConfig, LinkState, ReconnectingBus, open_bus
 from clutch_ros.canbus.dbc import PumpRequestCodec, RigDatabase
 from clutch_ros.canbus.errors import (
@@ -36,7 +36,8 @@ from clutch_ros.canbus.errors import (
     LogFileError,
 )
 from clutch_ros.canbus.logsource import LogSource
-from clutch_ros.canbus.pump import GateOutput, PumpCommandGate, PumpGateConfig
+from clutch_ros.canbus.pump_gate import GateOutput, PumpCommandGate, PumpGateConfig
+from clutch_ros.rigstate import RigSample
 
 __all__ = [
     "BusConfig",

@@ -31,8 +31,8 @@ import can
 import can.interfaces
 
 from clutch_ros.canbus.config import BusConfig, open_bus, parse_filters
+from clutch_ros.canbus.counters import RateLimiter, classify_socketcan_error
 from clutch_ros.canbus.errors import BusConfigError, BusUnavailable
-from clutch_ros.canbus.stats import RateLimiter, classify_socketcan_error
 from clutch_ros.canbus.udp import ECHOING_INTERFACES, EchoFilter, tune_udp_multicast
 
 __all__ = [

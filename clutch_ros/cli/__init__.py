@@ -1,80 +1,10 @@
 """The ``clutch`` command: import, replay, fit, calibrate, the demo and the closed loop.
 
-Every subcommand prints a clear one-line error and exits non-zero on bad input (never a
-traceback; set ``CLUTCH_DEBUG=1`` to see one). ``--json`` prints machine-readable results on
-stdout; progress and human text go to stderr.
-
-Exit codes: 0 success, 1 the job ran but failed its check, 2 bad input or usage.
+:mod:`clutch_ros.cli.main` builds the parser (loading only the chosen subcommand's module),
+:mod:`clutch_ros.cli.dispatch` runs a subcommand with the CLI's error handling and JSON output.
+One module per subcommand; the work itself is done by the layers below (see ARCHITECTURE.md).
 """
 
-from __future__ import annotations
+from clutch_ros.cli.main import main
 
-import argparse
-import json
-import os
-import sys
-
-from clutch_ros.errors import ClutchError
-
-__all__ = ["build_parser", "dispatch", "emit_json", "main", "standalone"]
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """Return the argument parser of ``clutch`` with all subcommands."""
-    from clutch_ros.cli import calibrate, closed_loop_cmd, demo, fit, import_cmd, replay
-
-    parser = argparse.ArgumentParser(
-        prog="clutch",
-        description="Wet lamella clutch torque estimation: import rig data, replay bags "
-                    "through the model, run the simulated rig end to end.")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for module in (import_cmd, replay, fit, calibrate, demo, closed_loop_cmd):
-        module.add_parser(sub)
-    return parser
-
-
-def emit_json(obj) -> None:
-    """Print ``obj`` as JSON on stdout (NaN written as null)."""
-    sys.stdout.write(json.dumps(_clean(obj), indent=2) + "\n")
-
-
-def _clean(obj):
-    if isinstance(obj, float):
-        return obj if obj == obj and obj not in (float("inf"), float("-inf")) else None
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    return obj
-
-
-def dispatch(args) -> int:
-    """Run the parsed subcommand ``args.func`` with the CLI's error handling."""
-    try:
-        return int(args.func(args) or 0)
-    except ClutchError as err:
-        if os.environ.get("CLUTCH_DEBUG"):
-            raise
-        sys.stderr.write(f"clutch {args.command}: error: {err}\n")
-        return 2
-    except KeyboardInterrupt:
-        sys.stderr.write(f"clutch {args.command}: interrupted\n")
-        return 130
-    except OSError as err:
-        if os.environ.get("CLUTCH_DEBUG"):
-            raise
-        sys.stderr.write(f"clutch {args.command}: error: {err}\n")
-        return 2
-
-
-def standalone(module, command: str, argv=None) -> int:
-    """Run one subcommand ``module`` as ``clutch COMMAND`` (``python -m clutch_ros.cli.X``)."""
-    parser = argparse.ArgumentParser(prog="clutch")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    module.add_parser(sub)
-    return dispatch(parser.parse_args([command, *(sys.argv[1:] if argv is None else argv)]))
-
-
-def main(argv=None) -> int:
-    """Run ``clutch`` with ``argv`` (default: sys.argv[1:]); return the exit code."""
-    return dispatch(build_parser().parse_args(argv))
+__all__ = ["main"]

@@ -2,6 +2,6 @@
 
 import sys
 
-from clutch_ros.cli import main
+from clutch_ros.cli.main import main
 
 sys.exit(main())

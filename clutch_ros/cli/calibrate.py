@@ -13,10 +13,18 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from clutch_ros.errors import ClutchError
+import numpy as np
+import yaml
 
-__all__ = ["add_parser", "run", "main", "read_calibration", "add_calibration_options",
-           "calibration_from_args"]
+from clutch_ros.bag.rig_states import read_rig_states
+from clutch_ros.cli.dispatch import emit_json, standalone
+from clutch_ros.config.params_file import load_params
+from clutch_ros.config.presets import preset_path
+from clutch_ros.errors import ClutchError
+from clutch_ros.model.calibration import METHODS, compare_methods, quasi_static_mask
+from clutch_ros.offline.flexiforce import flexiforce_voltages, read_calibration
+
+__all__ = ["add_parser", "run", "main", "add_calibration_options", "calibration_from_args"]
 
 
 def add_parser(sub) -> None:
@@ -36,14 +44,6 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     """Calibrate, print both methods and their comparison."""
-    import numpy as np
-
-    from clutch_ros.bag.reader import read_rig_states
-    from clutch_ros.cli.fit import flexiforce_voltages
-    from clutch_ros.model.calibration import compare_methods, quasi_static_mask
-    from clutch_ros.params_file import load_params
-    from clutch_ros.presets import preset_path
-
     area = load_params(preset_path(args.params)).pack.piston_area
     volts, forces, masks = [], [], []
     for bag in args.bags:
@@ -63,15 +63,12 @@ def run(args) -> int:
     doc["piston_area_m2"] = area
     doc["bags"] = [str(b) for b in args.bags]
     if args.output:
-        import yaml
-
         try:
             Path(args.output).write_text(yaml.safe_dump(doc, sort_keys=False),
                                          encoding="utf-8")
         except OSError as err:
             raise ClutchError(f"{args.output}: cannot write ({err})") from err
     if args.json:
-        from clutch_ros.cli import emit_json
 
         emit_json(doc)
         return 0
@@ -94,8 +91,6 @@ def add_calibration_options(p, used_for: str) -> None:
 
     ``used_for`` completes the help texts (what the calibrated pressures feed).
     """
-    from clutch_ros.model.calibration import METHODS
-
     p.add_argument("--calibration", choices=METHODS, default=METHODS[0],
                    help=f"FlexiForce calibration method for {used_for} (default: "
                         f"{METHODS[0]}, Eqs. 6-9)")
@@ -113,41 +108,13 @@ def calibration_from_args(args):
     """
     if not args.calibration_file:
         return None
+
     return read_calibration(args.calibration_file, args.calibration)
 
-
-def read_calibration(path, method: str = "same_force"):
-    """Read one method's calibration from a YAML file written by ``clutch calibrate -o``.
-
-    The file holds both methods (``same_force``, ``same_sensor``: the mappings of
-    :meth:`~clutch_ros.model.calibration.SensorCalibration.to_dict`); ``method`` picks one.
-    Returns a :class:`~clutch_ros.model.calibration.SensorCalibration`; a missing file, bad
-    YAML, a missing method or bad coefficients raise :class:`ClutchError` naming the file.
-    """
-    from clutch_ros.model.calibration import METHODS, CalibrationError, SensorCalibration
-    from clutch_ros.params_file import load_yaml
-
-    path = Path(path)
-    if method not in METHODS:
-        raise ClutchError(f"unknown calibration method {method!r} (one of {', '.join(METHODS)})")
-    doc = load_yaml(path, "calibration file")
-    entry = doc.get(method) if isinstance(doc, dict) else None
-    if not isinstance(entry, dict):
-        raise ClutchError(f"{path}: no {method!r} calibration in it (write one with "
-                          "'clutch calibrate BAG... -o FILE')")
-    if entry.get("method", method) != method:
-        raise ClutchError(f"{path}: the {method!r} entry says method "
-                          f"{entry.get('method')!r}")
-    try:
-        return SensorCalibration.from_dict(entry)
-    except (CalibrationError, KeyError, TypeError, ValueError) as err:
-        raise ClutchError(f"{path}: bad {method!r} calibration ({err})") from err
 
 
 def main(argv=None) -> int:
     """``python -m clutch_ros.cli.calibrate BAG...`` (same as ``clutch calibrate``)."""
-    from clutch_ros.cli import standalone
-
     return standalone(sys.modules[__name__], "calibrate", argv)
 
 

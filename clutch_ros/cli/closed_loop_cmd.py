@@ -1,7 +1,7 @@
 """``clutch closed-loop``: the controller on the simulated rig, offline and deterministic.
 
 Runs the truth plant (``--rig-params``), the estimator and the controller
-(:mod:`clutch_ros.rig.closed_loop`) over the demo's torque-request profile without ROS or a
+(:mod:`clutch_ros.offline.closed_loop`) over the demo's torque-request profile without ROS or a
 bus, for the default controller settings and, for comparison, without the request lead and
 without the spline-friction correction. Prints the fraction of settled time within ±10 % of
 the request, the worst overshoot and the longest stretch above 1.1.
@@ -11,6 +11,16 @@ from __future__ import annotations
 
 import math
 import sys
+from dataclasses import replace
+
+from clutch_ros.cli.dispatch import emit_json
+from clutch_ros.config.params_file import load_params
+from clutch_ros.config.presets import preset_path
+from clutch_ros.model import reference_torque
+from clutch_ros.model.control import ControllerSettings
+from clutch_ros.offline.closed_loop import run_closed_loop
+from clutch_ros.rig import RigPlant
+from clutch_ros.rig.request_profile import demo_profile
 
 __all__ = ["add_parser", "run"]
 
@@ -30,16 +40,6 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     """Run the three variants and print their figures."""
-    from dataclasses import replace
-
-    from clutch_ros.model import reference_torque
-    from clutch_ros.model.control import ControllerSettings
-    from clutch_ros.params_file import load_params
-    from clutch_ros.presets import preset_path
-    from clutch_ros.rig import RigPlant
-    from clutch_ros.rig.closed_loop import run_closed_loop
-    from clutch_ros.rig.request_profile import demo_profile
-
     params = load_params(preset_path(args.params))
     rig_file = preset_path(args.rig_params)
     rated = float(reference_torque(params, 40e5, 35.0, 10 * 2 * math.pi / 60))
@@ -52,7 +52,6 @@ def run(args) -> int:
         rows[name] = {"within_10pct": r.within_10pct, "worst_overshoot": r.worst_overshoot,
                       "longest_overshoot_s": r.longest_overshoot_s}
     if args.json:
-        from clutch_ros.cli import emit_json
 
         emit_json(rows)
         return 0

@@ -21,7 +21,21 @@ import sys
 import time
 from pathlib import Path
 
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.logging import LoggingSeverity
+
+from clutch_ros.cli.dispatch import emit_json
+from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
+from clutch_ros.config.params_file import load_params
+from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
+from clutch_ros.model import reference_torque
+from clutch_ros.nodes.demo_driver import DemoDriver
+from clutch_ros.nodes.recorder import RecorderNode
+from clutch_ros.offline.demo_summary import closed_loop_summary
+from clutch_ros.offline.plots import plot_demo
+from clutch_ros.rig.request_profile import demo_profile
 
 __all__ = ["add_parser", "run"]
 
@@ -54,11 +68,6 @@ def _say(text: str, end: str = "\n") -> None:
 
 def run(args) -> int:
     """Run the demo; return 0 (summary printed) or raise ClutchError."""
-    from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
-    from clutch_ros.params_file import load_params
-    from clutch_ros.presets import preset_path
-    from clutch_ros.rig.request_profile import demo_profile
-
     if not 1.0 <= args.rate <= 2000.0:
         raise ClutchError(f"--rate must be within 1..2000 Hz, got {args.rate}")
     est_file = preset_path(args.params)
@@ -98,7 +107,6 @@ def run(args) -> int:
             proc.stop()
     summary = _summarise(out, profile, driver, written, rated, args)
     if args.json:
-        from clutch_ros.cli import emit_json
 
         emit_json(summary)
     else:
@@ -107,17 +115,12 @@ def run(args) -> int:
 
 
 def _rated_torque(params) -> float:
-    from clutch_ros.model import reference_torque
 
     return float(abs(reference_torque(params, 40e5, 35.0, 10.0 * 2.0 * math.pi / 60.0)))
 
 
 def _drive(profile, procs, out: Path, args):
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
 
-    from clutch_ros.cli.demo_driver import DemoDriver
-    from clutch_ros.nodes.recorder import RecorderNode
 
     rclpy.init(args=[])
     executor = SingleThreadedExecutor()
@@ -125,7 +128,6 @@ def _drive(profile, procs, out: Path, args):
     recorder = RecorderNode(parameter_overrides=[
         rclpy.parameter.Parameter("recorder.output", value=str(out / "bag")),
         rclpy.parameter.Parameter("recorder.storage", value=args.storage)])
-    from rclpy.logging import LoggingSeverity
 
     recorder.get_logger().set_level(LoggingSeverity.WARN)  # the summary says where the bag is
     executor.add_node(driver)
@@ -168,13 +170,10 @@ def _check_alive(procs) -> None:
 
 
 def _summarise(out: Path, profile, driver, written, rated, args) -> dict:
-    from clutch_ros.cli.demo_summary import closed_loop_summary
 
     summary = closed_loop_summary(out / "bag", profile, driver.started_at)
     summary.update({"bag": str(out / "bag"), "rated_torque_nm": rated, "messages": written})
     if not args.no_plots:
-        from clutch_ros.cli.demo_plots import plot_demo
-
         summary["plots"] = [str(p) for p in plot_demo(out / "bag", profile, driver.started_at,
                                                       out)]
     return summary

@@ -28,19 +28,22 @@ import datetime
 import sys
 from pathlib import Path
 
+from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
+from clutch_ros.cli.dispatch import emit_json, standalone
+from clutch_ros.config.params_file import load_params, write_params
+from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
+from clutch_ros.model.calibration import METHODS
+from clutch_ros.model.identification import SAMPLE_BUDGET, FitOptions, fit
+from clutch_ros.offline.flexiforce import load_runs
 
-__all__ = ["add_parser", "run", "main", "load_runs", "flexiforce_pressures", "flexiforce_voltages",
-           "check_sensor_count"]
+__all__ = ["add_parser", "run", "main"]
 
 LAWS = ("none", "ff_t", "ff_v", "coulomb")
 
 
 def add_parser(sub) -> None:
     """Register ``clutch fit``."""
-    from clutch_ros.cli.calibrate import add_calibration_options
-    from clutch_ros.model.identification import SAMPLE_BUDGET
-
     p = sub.add_parser("fit", help="fit the model to recorded rig data (grey-box)",
                        description=__doc__.split("\n\n")[0])
     p.add_argument("bags", nargs="+", metavar="BAG", help="bags holding RigState messages")
@@ -70,129 +73,13 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
-def load_runs(bags, piston_area: float, *, pdiff: bool = True,
-              calibration: str = "same_force", fixed=None):
-    """Read the bags into :class:`~clutch_ros.model.identification.FitRun` objects.
-
-    Returns ``(runs, info)``; ``info`` holds the calibration (``calibration``: the fitted or
-    given (``fixed``) :class:`~clutch_ros.model.calibration.SensorCalibration` or None,
-    ``comparison``: both methods compared when fitted, ``calibration_error``: why there is
-    none).
-    """
-    import numpy as np
-
-    from clutch_ros.bag.reader import read_rig_states
-    from clutch_ros.model.identification import FitRun
-
-    arrays = []
-    for bag in bags:
-        rig = read_rig_states(Path(bag))
-        if len(rig) == 0:
-            raise ClutchError(f"{bag}: no RigState messages")
-        arrays.append((Path(bag), rig))
-    pressures, info = flexiforce_pressures([rig for _, rig in arrays], piston_area,
-                                           calibration=calibration, enabled=pdiff,
-                                           fixed=fixed)
-    runs = []
-    for (bag, rig), discs in zip(arrays, pressures):
-        measured = np.where(rig.has_measured_torque.astype(bool), rig.measured_torque, np.nan)
-        front, rear = discs if discs is not None else (None, None)
-        runs.append(FitRun(rig.time, rig.actuating_pressure, rig.lamella_temperature,
-                           rig.slip_speed, measured, name=bag.name, front_pressure=front,
-                           rear_pressure=rear))
-    return runs, info
 
 
-def flexiforce_pressures(rigs, piston_area: float, *, calibration: str = "same_force",
-                         enabled: bool = True, fixed=None):
-    """Front/rear lamella pressures [Pa] from the FlexiForce voltages of RigState arrays.
 
-    The sensors are calibrated on the runs themselves (thesis §5.5: both methods fitted
-    against F_act = p·A on the quasi-static samples of every run with voltages, ``calibration``
-    selecting the one used), unless ``fixed`` gives a ``SensorCalibration`` to use as it is
-    (then a run whose sensor count differs from it raises :class:`ClutchError`). Returns
-    ``(pressures, info)``: per run ``(front, rear)`` arrays (n,) or None (no voltages, no
-    calibration), and ``info`` as :func:`load_runs` describes.
-    """
-    import numpy as np
-
-    from clutch_ros.model.calibration import (
-        CalibrationError,
-        compare_methods,
-        quasi_static_mask,
-    )
-
-    info: dict = {"calibration": None, "comparison": None, "calibration_error": None}
-    if not enabled:
-        return [None] * len(rigs), info
-    voltages = [flexiforce_voltages(rig) for rig in rigs]
-    if all(v is None for v in voltages):
-        info["calibration_error"] = "no FlexiForce voltages in the bags"
-        return [None] * len(rigs), info
-    widths = {v.shape[1] for v in voltages if v is not None}
-    if fixed is not None:
-        check_sensor_count(fixed, widths)
-        info["calibration"] = fixed
-        return [None if v is None else _disc_pressures(fixed, v, piston_area)
-                for v in voltages], info
-    try:
-        if len(widths) != 1:
-            raise CalibrationError(f"the bags have different sensor counts {widths}")
-        vs, forces, masks = [], [], []
-        for rig, v in zip(rigs, voltages):
-            if v is None:
-                continue
-            vs.append(v)
-            forces.append(rig.actuating_pressure * piston_area)
-            masks.append(quasi_static_mask(rig.time, rig.actuating_pressure))
-        comparison = compare_methods(np.concatenate(vs), np.concatenate(forces),
-                                     piston_area, np.concatenate(masks))
-        info["comparison"] = comparison
-        info["calibration"] = getattr(comparison, calibration)
-    except CalibrationError as err:
-        info["calibration_error"] = (f"{err} (no calibration on these bags: calibrate on a run "
-                                     "with pressure plateaus, 'clutch calibrate -o FILE', and "
-                                     "pass --calibration-file FILE)")
-        return [None] * len(rigs), info
-    return [None if v is None else _disc_pressures(info["calibration"], v, piston_area)
-            for v in voltages], info
-
-
-def check_sensor_count(cal, widths, where: str = "") -> None:
-    """Raise :class:`ClutchError` unless every voltage width in ``widths`` is ``cal``'s 2k.
-
-    ``where`` prefixes the message (e.g. ``"<bag>: "``).
-    """
-    if set(widths) != {2 * cal.sensors_per_lamella}:
-        raise ClutchError(f"{where}the calibration is for {2 * cal.sensors_per_lamella} "
-                          f"FlexiForce sensors, the bags have {sorted(widths)}")
-
-
-def _disc_pressures(cal, voltages, piston_area: float):
-    est = cal.pressures(voltages, piston_area)
-    return est.front, est.rear
-
-
-def flexiforce_voltages(rig):
-    """Return the (n, 2k) FlexiForce voltages of a RigStateArrays, or None when absent."""
-    import numpy as np
-
-    v = getattr(rig, "ff_voltages", None)
-    if v is None or v.ndim != 2 or v.shape[1] < 2 or v.shape[1] % 2:
-        return None
-    lengths = rig.columns.get("ff_voltages.len")
-    if lengths is not None and not (np.asarray(lengths) == v.shape[1]).mean() > 0.5:
-        return None
-    return v
 
 
 def run(args) -> int:
     """Fit, write the parameter file, print the figures."""
-    from clutch_ros.cli.calibrate import calibration_from_args
-    from clutch_ros.model.identification import FitOptions, fit
-    from clutch_ros.params_file import load_params, write_params
-    from clutch_ros.presets import preset_path
-
     if args.pdiff_weight is not None and not args.pdiff_weight >= 0.0:
         raise ClutchError(f"--pdiff-weight must be >= 0, got {args.pdiff_weight}")
     if args.fit_rate is not None and not args.fit_rate > 0.0:
@@ -226,7 +113,6 @@ def run(args) -> int:
     write_params(result.params, out, header=header)
     cal = info["calibration"]
     if args.json:
-        from clutch_ros.cli import emit_json
 
         doc = result.to_dict()
         doc.update(output=str(out), bags=[str(b) for b in args.bags],
@@ -257,15 +143,12 @@ def run(args) -> int:
 
 def _comparison_brief(comparison) -> dict:
     doc = comparison.to_dict()
-    from clutch_ros.model.calibration import METHODS
 
     return {k: v for k, v in doc.items() if k not in METHODS}
 
 
 def main(argv=None) -> int:
     """``python -m clutch_ros.cli.fit BAG... --law LAW -o PARAMS`` (same as ``clutch fit``)."""
-    from clutch_ros.cli import standalone
-
     return standalone(sys.modules[__name__], "fit", argv)
 
 

@@ -10,11 +10,11 @@ friction law, the fraction of samples with accuracy in [0.9, 1.1] where the torq
 input sample (header = input header, as the node publishes it) on ``/clutch_estimate``;
 ``--report DIR`` writes PNG plots, among them the thesis's validation views (RMSE per
 sequence, torque accuracy over time, P_diff vs the spline force, the residual
-cross-correlation of Eq. 3; :mod:`clutch_ros.cli.replay_report`), listed per bag under
+cross-correlation of Eq. 3; :mod:`clutch_ros.offline.replay_report`), listed per bag under
 ``plots`` in the JSON. The report's measured P_diff comes from the bags' FlexiForce voltages,
 calibrated on the replayed bags (``--calibration`` method) or taken from a calibration file
 written by ``clutch calibrate -o`` (``--calibration-file``). The work is done by
-:mod:`clutch_ros.bag.replay`.
+:mod:`clutch_ros.offline.replay`.
 """
 
 from __future__ import annotations
@@ -23,15 +23,20 @@ import sys
 import time
 from pathlib import Path
 
+from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
+from clutch_ros.cli.dispatch import emit_json
+from clutch_ros.config.params_file import load_params
+from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
+from clutch_ros.offline.replay import replay_bag as replay
+from clutch_ros.offline.replay import write_estimates
+from clutch_ros.offline.replay_report import ReplayReport
 
 __all__ = ["add_parser", "run", "replay_bag"]
 
 
 def add_parser(sub) -> None:
     """Register ``clutch replay``."""
-    from clutch_ros.cli.calibrate import add_calibration_options
-
     p = sub.add_parser("replay", help="run the estimator offline over bags",
                        description=__doc__.split("\n\n")[0])
     p.add_argument("bags", nargs="+", metavar="BAG", help="bags holding RigState messages")
@@ -54,19 +59,12 @@ def add_parser(sub) -> None:
 
 def replay_bag(bag: Path, params) -> tuple[object, object]:
     """Return ``(rig arrays, EstimateBatch)`` for one bag (bad samples skipped)."""
-    from clutch_ros.bag.replay import replay_bag as replay
-
     result = replay(bag, params)
     return result.rig, result.batch
 
 
 def run(args) -> int:
     """Replay every bag; print one summary line (or JSON object) per bag."""
-    from clutch_ros.bag.replay import replay_bag as replay
-    from clutch_ros.bag.replay import write_estimates
-    from clutch_ros.params_file import load_params
-    from clutch_ros.presets import preset_path
-
     params = load_params(preset_path(args.params))
     if args.law:  # ff_t/ff_v take Table 7's 10 rpm gain and time constant
         params = params.with_law(args.law)
@@ -80,9 +78,6 @@ def run(args) -> int:
                           "--report DIR too")
     report = None
     if args.report:
-        from clutch_ros.cli.calibrate import calibration_from_args
-        from clutch_ros.cli.replay_report import ReplayReport
-
         report = ReplayReport(Path(args.report), params, params.spline.law,
                               calibration=args.calibration,
                               fixed_calibration=calibration_from_args(args))
@@ -103,7 +98,6 @@ def run(args) -> int:
     if report is not None:
         report.finish(results)
     if args.json:
-        from clutch_ros.cli import emit_json
 
         emit_json(results)
     else:

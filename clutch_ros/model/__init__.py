@@ -1,6 +1,6 @@
 """Model core of clutch_ros: the wet lamella-pack torque model in pure numpy/scipy.
 
-No ROS, CAN, bag or file I/O here (``clutch_ros.params_file`` reads the YAML). Units are SI
+No ROS, CAN, bag or file I/O here (``clutch_ros.config.params_file`` reads the YAML). Units are SI
 (pressure Pa, force N, torque N m, speed rad/s, time s) with temperatures in °C; every module
 documents its quantities. Main entry points:
 

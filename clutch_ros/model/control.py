@@ -141,7 +141,7 @@ class ControllerOutput:
 class TorqueController:
     """Stateful torque-to-pressure controller: ramp, lead, control law, limits.
 
-    The controller node and the offline closed loop (:mod:`clutch_ros.rig.closed_loop`) both
+    The controller node and the offline closed loop (:mod:`clutch_ros.offline.closed_loop`) both
     run this class, so what is tested offline is what runs on the rig. Per tick
     (:meth:`update`): the target ramps towards the request at ``torque_ramp_rate``, is advanced
     by ``lead_time`` x the request slope, goes through :func:`command_pressure`, then the

@@ -12,7 +12,7 @@ itself (parameterisation, residuals, solver, standard errors) lives there.
   (:class:`UnidentifiableParameterError`, with ``keys``): :func:`check_data` before the fit,
   :func:`rank_check` on the solver's Jacobian after it.
 - Preparation, for speed (a one-hour 1 kHz run fits in well under a minute, ``python -m
-  clutch_ros.model.fit_bench``):
+  benchmarks.model_fit``):
 
 1. *Anti-aliased decimation.* Every run is cut at gaps longer than ``max_gap_s`` (as the
    estimator re-initialises there) and block-averaged to ``fit_rate_hz`` (default 100 Hz,

@@ -52,7 +52,7 @@ segments within :data:`SAMPLE_BUDGET`) are in :mod:`~clutch_ros.model.fit_data`,
 names are re-exported here.
 
 Speed (a one-hour 1 kHz run fits in well under a minute, ``python -m
-clutch_ros.model.fit_bench``): each residual evaluation simulates at most ``max_samples``
+benchmarks.model_fit``): each residual evaluation simulates at most ``max_samples``
 decimated samples (≈ 0.06 s; with the coulomb law 0.2–1 s, its stick/slip steps cost
 50–250 µs each, most while plates slide); a fit takes 5–15 least-squares iterations of
 n + 1 evaluations (forward differences; the final Jacobian is re-done with central

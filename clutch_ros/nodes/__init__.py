@@ -8,7 +8,7 @@ One BLAS thread per node process: importing this package sets ``OPENBLAS_NUM_THR
 ``OMP_NUM_THREADS`` to 1 unless they are set already (a value you set is kept), before any
 node imports numpy. The model's matrices are at most ~30 x 30, far below where a second BLAS
 thread pays off, while OpenBLAS's pool threads spin after each call and take CPU from the
-DDS threads. Measured with ``python -m clutch_ros.nodes.bench`` on this 2-core machine, the
+DDS threads. Measured with ``python -m benchmarks.estimator_node`` on this 2-core machine, the
 estimator's p99 latency at 1 kHz fell from 6-12 ms to 1.7-2.1 ms and at 2 kHz from 27-85 ms
 to about 4 ms (median unchanged at ~0.4 ms).
 """

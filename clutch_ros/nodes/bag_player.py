@@ -27,7 +27,11 @@ import threading
 import time
 
 from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
 
+from clutch_ros.bag.diagnose import blame_file
+from clutch_ros.bag.errors import BagCorruptError
+from clutch_ros.bag.reader import BagReader
 from clutch_ros.nodes.common import (
     ParamSpec,
     declare_params,
@@ -67,9 +71,7 @@ class BagPlayerNode(Node):
 
     def __init__(self):
         super().__init__(NAME)
-        from rosgraph_msgs.msg import Clock
 
-        from clutch_ros.bag.reader import BagReader
 
         cfg = self._cfg = declare_params(self, PARAMS)
         if not cfg["player.bag"]:
@@ -162,9 +164,6 @@ class BagPlayerNode(Node):
 
     def _check(self, topic: str, bag_ns: int, data) -> None:
         """Decode one message so a corrupt one stops playback instead of being published."""
-        from clutch_ros.bag.diagnose import blame_file
-        from clutch_ros.bag.errors import BagCorruptError
-
         typename = self._types[topic]
         try:
             self._reader.store.deserialize_cdr(data, typename)

@@ -5,7 +5,7 @@ python-can Notifier thread; DBC frames are decoded (:mod:`clutch_ros.canbus`) in
 signals and ``rig_state`` is published, stamped with the newest contributing frame's bus
 timestamp (not the publish time), only when new frames arrived: at once when the
 ``bridge.publish_on`` frame (the end of the rig's cycle) arrives, at most ``bridge.rate``
-(:class:`~clutch_ros.canbus.stats.PublishPacer`), or on a ``bridge.rate`` timer when that
+(:class:`~clutch_ros.canbus.counters.PublishPacer`), or on a ``bridge.rate`` timer when that
 is empty. Stale signal groups are flagged in ``stale_mask`` and diagnosed; an idle bus warns
 once. ``bridge.publish_raw`` publishes every frame on ``can_frames``. Our own frames looped
 back by the interface (udp_multicast) are removed by the bus, never decoded.
@@ -28,8 +28,21 @@ from __future__ import annotations
 import threading
 import time
 
+import can
+from clutch_msgs.msg import CanFrame, PressureCommand, RigState
 from rclpy.node import Node
 
+from clutch_ros.canbus import (
+    BusConfig,
+    CanError,
+    LogSource,
+    PumpCommandGate,
+    PumpGateConfig,
+    ReconnectingBus,
+    RigDatabase,
+)
+from clutch_ros.canbus import RigStateAssembler as Assembler
+from clutch_ros.canbus.counters import PublishPacer
 from clutch_ros.canbus.dbc import frame_key
 from clutch_ros.nodes.can_diagnostics import bridge_status
 from clutch_ros.nodes.common import (
@@ -41,7 +54,7 @@ from clutch_ros.nodes.common import (
     run_node,
     sensor_qos,
 )
-from clutch_ros.nodes.convert import can_frame_msg, rig_state_msg
+from clutch_ros.nodes.convert import can_frame_to_ros, rig_state_to_ros
 
 NAME = "can_bridge"
 IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning
@@ -81,11 +94,7 @@ class CanBridgeNode(Node):
 
     def __init__(self):
         super().__init__(NAME)
-        from clutch_msgs.msg import CanFrame, PressureCommand, RigState
 
-        from clutch_ros.canbus import PumpCommandGate, PumpGateConfig, RigDatabase
-        from clutch_ros.canbus import RigStateAssembler as Assembler
-        from clutch_ros.canbus.stats import PublishPacer
 
         cfg = self._cfg = declare_params(self, PARAMS)
         self._send_warn = LogThrottle(5.0)
@@ -124,9 +133,7 @@ class CanBridgeNode(Node):
 
     # -- receive --------------------------------------------------------------------------
     def _start_bus(self) -> None:
-        import can
 
-        from clutch_ros.canbus import BusConfig, ReconnectingBus
 
         config = BusConfig.from_params(self._cfg)
         self._bus = ReconnectingBus(config, on_event=self._on_link_event)
@@ -145,7 +152,7 @@ class CanBridgeNode(Node):
     def _on_frame(self, frame) -> None:
         """Notifier thread, after the assembler: raw topic, PumpRequests of others, publish."""
         if self._raw_pub is not None:
-            self._raw_pub.publish(can_frame_msg(frame, self._offset or 0.0))
+            self._raw_pub.publish(can_frame_to_ros(frame, self._offset or 0.0))
         if frame.is_error_frame or frame.is_remote_frame:
             return
         key = frame_key(frame.arbitration_id, frame.is_extended_id)
@@ -154,7 +161,6 @@ class CanBridgeNode(Node):
         self._publish_latest(self._pacer.on_frame, key)
 
     def _start_log(self, path: str, realtime: bool) -> None:
-        from clutch_ros.canbus import LogSource
 
         source = self._source = LogSource(path, realtime=realtime)
         source.check()  # a bad file fails the start with a clear message
@@ -199,7 +205,7 @@ class CanBridgeNode(Node):
         self._last_stamp, self._last_new, self._stale = sample.stamp, time.monotonic(), \
             sample.stale
         self._stale_reports += bool(sample.stale_mask)
-        self._rig_pub.publish(rig_state_msg(sample, self._offset or 0.0))
+        self._rig_pub.publish(rig_state_to_ros(sample, self._offset or 0.0))
         self._published += 1
         return True
 
@@ -208,9 +214,7 @@ class CanBridgeNode(Node):
         self._send(self._gate.submit(msg.pressure), msg)
 
     def _send(self, out, command=None) -> None:
-        from clutch_msgs.msg import PressureCommand
 
-        from clutch_ros.canbus import CanError
 
         try:
             self._bus.send(out.frame, timeout=SEND_TIMEOUT)

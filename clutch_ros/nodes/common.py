@@ -14,6 +14,15 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+
+from clutch_ros.errors import ClutchError
+
 __all__ = [
     "LogThrottle",
     "ParamSpec",
@@ -83,15 +92,11 @@ class LogThrottle:
 
 def sensor_qos():
     """Return the sensor-data QoS profile (best effort, shallow): used for ``rig_state``."""
-    from rclpy.qos import qos_profile_sensor_data
-
     return qos_profile_sensor_data
 
 
 def reliable_qos(depth: int = 200):
     """Return a reliable, volatile QoS profile: estimates, commands and requests."""
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-
     return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE)
 
 
@@ -115,8 +120,6 @@ def sec_to_stamp(seconds: float, stamp=None):
 
 def declare_params(node, specs: Iterable[ParamSpec], overrides: dict | None = None) -> dict:
     """Declare ``specs`` on ``node`` with descriptors and ranges; return {name: value}."""
-    from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-
     values = {}
     for spec in specs:
         descriptor = ParameterDescriptor(description=spec.describe(), read_only=spec.read_only)
@@ -139,7 +142,7 @@ def declare_params(node, specs: Iterable[ParamSpec], overrides: dict | None = No
 
 
 #: Executor the nodes spin by default. SingleThreadedExecutor: measured by
-#: ``python -m clutch_ros.nodes.bench`` against rclpy.experimental.EventsExecutor (figures in
+#: ``python -m benchmarks.estimator_node`` against rclpy.experimental.EventsExecutor (figures in
 #: the README); ``--executor events`` before ``--ros-args`` selects the other one.
 DEFAULT_EXECUTOR = "single"
 
@@ -147,7 +150,7 @@ DEFAULT_EXECUTOR = "single"
 EVENTS_WARNING = ("--executor events is experimental: with the rclpy 9.1.2 wheels from PyPI "
                   "it ran no subscription or timer callbacks after the first spin and ignored "
                   "SIGINT; use the default (single) unless your rclpy build was checked with "
-                  "'python -m clutch_ros.nodes.bench'")
+                  "'python -m benchmarks.estimator_node'")
 
 
 def make_executor(kind: str = DEFAULT_EXECUTOR):
@@ -210,7 +213,6 @@ class Diagnostics:
     """
 
     def __init__(self, node, collect: Callable[[], tuple[str, str, dict]], period_s: float = 1.0):
-        from diagnostic_msgs.msg import DiagnosticArray
 
         self._node = node
         self._collect = collect
@@ -219,8 +221,6 @@ class Diagnostics:
 
     def publish_now(self) -> None:
         """Collect and publish one status now."""
-        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-
         level, message, values = self._collect()
         status = DiagnosticStatus()
         status.level = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN,
@@ -254,11 +254,7 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
         sys.stdout.write(format_help(name, doc, specs))
         return 0
     executor_kind, argv = _executor_option(argv)
-    import rclpy
-    from rclpy.exceptions import ParameterException
-    from rclpy.executors import ExternalShutdownException
 
-    from clutch_ros.errors import ClutchError
 
     # rclpy's own handlers (SignalHandlerOptions.ALL, the default) turn SIGINT and SIGTERM
     # into a clean shutdown even while the executor waits in C; a Python-level handler would

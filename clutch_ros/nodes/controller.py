@@ -20,8 +20,12 @@ arrives (NaN or negative requests are treated as 0 N m and reported).
 
 from __future__ import annotations
 
+from clutch_msgs.msg import ClutchEstimate, PressureCommand, RigState, TorqueRequest
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
+from clutch_ros.config.presets import default_preset
+from clutch_ros.model.control import ControllerSettings, TorqueController
 from clutch_ros.nodes.common import (
     Diagnostics,
     LogThrottle,
@@ -31,8 +35,7 @@ from clutch_ros.nodes.common import (
     run_node,
     sensor_qos,
 )
-from clutch_ros.nodes.model_params import declare_model_params
-from clutch_ros.nodes.presets import DEFAULT_ESTIMATOR_PRESET
+from clutch_ros.nodes.model_params import apply_model_changes, declare_model_params
 
 NAME = "controller"
 PARAMS = [
@@ -68,12 +71,10 @@ class ControllerNode(Node):
 
     def __init__(self):
         super().__init__(NAME)
-        from clutch_msgs.msg import ClutchEstimate, PressureCommand, RigState, TorqueRequest
 
-        from clutch_ros.model.control import ControllerSettings, TorqueController
 
         cfg = self._cfg = declare_params(self, PARAMS)
-        params = declare_model_params(self, DEFAULT_ESTIMATOR_PRESET)
+        params = declare_model_params(self, default_preset("flexiforce_8"))
         self._ctl = TorqueController(params, ControllerSettings(
             period=1.0 / cfg["controller.rate"], min_pressure=cfg["controller.min_pressure"],
             max_pressure=cfg["controller.max_pressure"],
@@ -102,10 +103,6 @@ class ControllerNode(Node):
 
     def _on_set_parameters(self, params):
         """Apply model-key changes (validated by the model); controller.* need a restart."""
-        from rcl_interfaces.msg import SetParametersResult
-
-        from clutch_ros.nodes.model_params import apply_model_changes
-
         fixed = [p.name for p in params if p.name.startswith("controller.")]
         if fixed:
             return SetParametersResult(successful=False, reason=f"{', '.join(fixed)}: "
@@ -147,7 +144,6 @@ class ControllerNode(Node):
         return ""
 
     def _tick(self) -> None:
-        from clutch_msgs.msg import PressureCommand
 
         stale = self._stale_reason(self._now())
         if stale:

@@ -14,9 +14,14 @@ from __future__ import annotations
 
 import math
 
+from clutch_msgs.msg import ClutchEstimate, RigState
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+from clutch_ros.config.params_file import load_flat
+from clutch_ros.config.presets import default_preset
+from clutch_ros.model import ClutchEstimator, SampleRejected
 from clutch_ros.nodes.common import (
     Diagnostics,
     LogThrottle,
@@ -27,8 +32,12 @@ from clutch_ros.nodes.common import (
     stamp_to_sec,
 )
 from clutch_ros.nodes.convert import estimate_to_msg
-from clutch_ros.nodes.model_params import declare_model_params, model_param_specs
-from clutch_ros.nodes.presets import DEFAULT_ESTIMATOR_PRESET
+from clutch_ros.nodes.loss_tracker import LossTracker
+from clutch_ros.nodes.model_params import (
+    apply_model_changes,
+    declare_model_params,
+    model_param_specs,
+)
 
 NAME = "estimator"
 PARAMS = [
@@ -48,10 +57,9 @@ class EstimatorNode(Node):
 
     def __init__(self):
         super().__init__(NAME)
-        from clutch_ros.model import ClutchEstimator
 
         self._cfg = declare_params(self, PARAMS)
-        self._params = declare_model_params(self, DEFAULT_ESTIMATOR_PRESET)
+        self._params = declare_model_params(self, default_preset("flexiforce_8"))
         self._estimator = ClutchEstimator(self._params,
                                           max_gap_s=self._cfg["estimator.max_gap"])
         self._skipped: dict[str, int] = {}
@@ -64,9 +72,7 @@ class EstimatorNode(Node):
         # Sensor-data QoS (best effort) as the bridge offers it, with a deep queue so a
         # stall of the estimator does not overwrite samples; samples lost anyway are counted
         # exactly from the DDS publication sequence numbers.
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-        from clutch_ros.bag.record import LossTracker
 
         self._loss = LossTracker()
         self._loss.add_topic("rig_state")
@@ -89,7 +95,6 @@ class EstimatorNode(Node):
             self._skip("internal_error", f"{type(err).__name__}: {err}")
 
     def _estimate(self, msg) -> None:
-        from clutch_ros.model import SampleRejected
 
         now = self.get_clock().now().nanoseconds * 1e-9
         self._last_input = now
@@ -119,7 +124,6 @@ class EstimatorNode(Node):
                                       "/diagnostics)")
 
     def _on_set_parameters(self, params) -> SetParametersResult:
-        from clutch_ros.nodes.model_params import apply_model_changes
 
         # Validated against the complete current set (required keys included).
         new_params, reason = apply_model_changes(self._params, params)
@@ -153,13 +157,11 @@ class EstimatorNode(Node):
 
 
 def _msg_type():
-    from clutch_msgs.msg import ClutchEstimate
 
     return ClutchEstimate
 
 
 def _rig_state_type():
-    from clutch_msgs.msg import RigState
 
     return RigState
 
@@ -171,9 +173,7 @@ def main(args=None) -> int:
 
 def _model_specs_for_help():
     try:
-        from clutch_ros.params_file import load_flat
-
-        return model_param_specs(defaults=load_flat(DEFAULT_ESTIMATOR_PRESET))
+        return model_param_specs(defaults=load_flat(default_preset("flexiforce_8")))
     except Exception:  # noqa: BLE001 - help must work even with a broken preset
         return []
 

@@ -8,6 +8,9 @@ rejects a bad ``ros2 param set`` with the model's own reason.
 
 from __future__ import annotations
 
+from clutch_ros.config.params_file import load_flat
+from clutch_ros.errors import ClutchError
+from clutch_ros.model import NAMESPACES, PARAMETER_SPECS, ClutchParams
 from clutch_ros.nodes.common import ParamSpec, declare_params
 
 __all__ = ["model_param_specs", "declare_model_params", "validated_params",
@@ -16,8 +19,6 @@ __all__ = ["model_param_specs", "declare_model_params", "validated_params",
 
 def model_param_specs(prefix: str = "", defaults: dict | None = None) -> list[ParamSpec]:
     """Return a ParamSpec per model key, defaults from ``defaults`` (flat dotted keys)."""
-    from clutch_ros.model import PARAMETER_SPECS
-
     specs = []
     for key, spec in PARAMETER_SPECS.items():
         default = (defaults or {}).get(key, spec.default)
@@ -38,8 +39,6 @@ def declare_model_params(node, preset_path: str | None = None):
     Defaults come from ``preset_path`` (a params YAML, usually the package's
     ``flexiforce_8.yaml``); values given by ``--params-file``/``-p`` override them.
     """
-    from clutch_ros.params_file import load_flat
-
     defaults = load_flat(preset_path) if preset_path else {}
     values = declare_params(node, model_param_specs(defaults=defaults))
     params = validated_params(values)
@@ -55,8 +54,6 @@ def _model_checks_ranges(node, keys) -> None:
     it with its own reason (same bounds, plus exclusive minima, finiteness, cross-key rules).
     Values from the parameter file at start-up were range-checked by rclpy already.
     """
-    from clutch_ros.model import PARAMETER_SPECS
-
     for key in keys:
         spec, descriptor = PARAMETER_SPECS[key], node.describe_parameter(key)
         if spec.kind != "str" and (descriptor.floating_point_range or descriptor.integer_range):
@@ -74,9 +71,6 @@ def apply_model_changes(current, parameters):
     Returns ``(new ClutchParams or None when no model key changed, reason)``; ``reason`` is
     empty on success and the model's message when the change is refused.
     """
-    from clutch_ros.errors import ClutchError
-    from clutch_ros.model import NAMESPACES
-
     changes = {p.name: p.value for p in parameters
                if p.name.split(".", 1)[0] in NAMESPACES}
     if not changes:
@@ -89,8 +83,6 @@ def apply_model_changes(current, parameters):
 
 def validated_params(flat: dict, changes: dict | None = None):
     """Build ``ClutchParams`` from flat values plus ``changes``; raise ParameterError if bad."""
-    from clutch_ros.model import ClutchParams
-
     merged = dict(flat)
     merged.update(changes or {})
     return ClutchParams.from_flat(merged)

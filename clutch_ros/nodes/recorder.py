@@ -7,7 +7,7 @@ best effort) is subscribed best-effort with a deep queue (``recorder.queue_depth
 timestamps are the receive times on the node clock (``use_sim_time`` gives sim time), as
 ``ros2 bag record`` stores them.
 
-Loss accounting (:class:`clutch_ros.bag.record.LossTracker`): every sample carries its
+Loss accounting (:class:`clutch_ros.nodes.loss_tracker.LossTracker`): every sample carries its
 publisher's DDS sequence number, so a gap is counted exactly, per topic, as ``dropped`` and
 stored in the bag (``custom_data`` ``clutch_ros.dropped``, via ``BagWriter.mark_dropped``);
 samples a publisher sent before the first one seen here are ``missed_at_start``. Counts
@@ -23,8 +23,11 @@ import time
 from pathlib import Path
 
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from clutch_ros.bag.writer import BagWriter
 from clutch_ros.nodes.common import Diagnostics, ParamSpec, declare_params, run_node
+from clutch_ros.nodes.loss_tracker import LossTracker, format_counts
 
 NAME = "recorder"
 #: topic (relative) -> (rclpy message type path, reliable?)
@@ -57,10 +60,7 @@ class RecorderNode(Node):
 
     def __init__(self, **kwargs):
         super().__init__(NAME, **kwargs)
-        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-        from clutch_ros.bag.record import LossTracker
-        from clutch_ros.bag.writer import BagWriter
 
         cfg = declare_params(self, PARAMS)
         if cfg["recorder.storage"] not in ("mcap", "sqlite3"):
@@ -128,8 +128,6 @@ class RecorderNode(Node):
 
     def close(self) -> dict[str, int]:
         """Finish the bag (verifying counts) and return messages written per topic."""
-        from clutch_ros.bag.record import format_counts
-
         if self._writer.closed:
             return dict(self._writer.written)
         self._writer.set_custom_data("clutch_ros.received", format_counts(self.received))

@@ -23,7 +23,11 @@ import time
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
+from clutch_ros.canbus import BusConfig, ReconnectingBus
 from clutch_ros.nodes.common import Diagnostics, ParamSpec, declare_params, run_node
+from clutch_ros.rig import RigPlant, RigSimulator
+from clutch_ros.rig.can_io import RigCanPort
+from clutch_ros.rig.scenario import ScenarioPoint, scenario_from_spec
 
 NAME = "rig_sim"
 PARAMS = [
@@ -55,8 +59,6 @@ class _OperatorScenario:
 
     def at(self, t: float):
         """Return the operator's command at ``t`` [s]: bus pressure, held slip speed."""
-        from clutch_ros.rig.scenario import ScenarioPoint
-
         return ScenarioPoint(math.nan, self.slip_speed, math.nan)
 
 
@@ -65,9 +67,6 @@ class RigSimNode(Node):
 
     def __init__(self):
         super().__init__(NAME)
-        from clutch_ros.canbus import BusConfig, ReconnectingBus
-        from clutch_ros.rig import RigCanPort, RigPlant, RigSimulator
-        from clutch_ros.rig.scenario import scenario_from_spec
 
         cfg = self._cfg = declare_params(self, PARAMS)
         plant = RigPlant.from_file(cfg["rig.params_file"], seed=cfg["rig.seed"])

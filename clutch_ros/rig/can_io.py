@@ -7,7 +7,7 @@ advanced by exactly 1 (mod 16) since the previous frame, keeps the latest valid 
 its receive time, counts the bad ones, and yields the request the pump follows — 0 Pa when no
 valid frame arrived within the timeout (the DBC's 100 ms) or, as the DBC demands of the pump,
 while the last frame received was invalid. :class:`RigCanPort` ties both to a python-can bus.
-:class:`~clutch_ros.rig.simulator.RigSimulator` (re-exported here) runs plant, scenario and
+:class:`~clutch_ros.rig.simulator.RigSimulator` runs plant, scenario and
 port at 1 kHz.
 
 The rig sim is every sender of the rig DBC except the bridge: the rig DAQ (RigFast, RigSpeed,
@@ -34,7 +34,6 @@ __all__ = [
     "PumpRequestMonitor",
     "PumpStatusState",
     "RigCanPort",
-    "RigSimulator",
     "TX_FRAMES",
 ]
 
@@ -350,5 +349,3 @@ class RigCanPort:
         """Return the pressure the pump follows at ``now`` [Pa] (see the monitor)."""
         return self.monitor.requested_pressure(now)
 
-
-from clutch_ros.rig.simulator import RigSimulator  # noqa: E402  (re-export, no cycle)

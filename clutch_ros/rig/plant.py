@@ -30,6 +30,9 @@ from typing import Any
 
 import numpy as np
 
+from clutch_ros.config.params_file import load_flat, load_params
+from clutch_ros.config.presets import preset_path
+from clutch_ros.model import ClutchParams, PackModel
 from clutch_ros.rig.errors import RigConfigError, check_non_negative
 from clutch_ros.rig.flexiforce import FlexiForceArray, FlexiForceParams
 from clutch_ros.rig.pump import PumpModel, PumpParams
@@ -124,12 +127,8 @@ def load_truth_params(source: Any = None):
 
     The default is the ``rig_truth`` preset (``params/rig_truth.yaml``).
     """
-    from clutch_ros.model import ClutchParams
-
     if isinstance(source, ClutchParams):
         return source
-    from clutch_ros.params_file import load_params
-    from clutch_ros.presets import preset_path
 
     return load_params(preset_path(str(source) if source is not None else "rig_truth"))
 
@@ -207,7 +206,6 @@ class RigPlant:
 
     def __init__(self, truth: Any = None, params: RigPlantParams | None = None,
                  seed: Any = 0) -> None:
-        from clutch_ros.model import PackModel
 
         self.truth = load_truth_params(truth)
         self.params = params or RigPlantParams()
@@ -230,10 +228,6 @@ class RigPlant:
         ``path`` is a file or preset name (default ``rig_truth``); ``rig.*`` keys absent from
         it keep their defaults (:meth:`RigPlantParams.from_flat`).
         """
-        from clutch_ros.model import ClutchParams
-        from clutch_ros.params_file import load_flat
-        from clutch_ros.presets import preset_path
-
         file = preset_path(str(path) if path is not None else "rig_truth")
         flat = load_flat(file)
         return cls(ClutchParams.from_flat(flat, source=str(file)),

@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 __all__ = ["Segment", "demo_profile", "request_at", "slip_at", "settled_mask"]
 
 RPM = 2.0 * math.pi / 60.0  # [rad/s per rpm]
@@ -82,8 +84,6 @@ def settled_mask(profile: list[Segment], t, settle_s: float = 1.0):
     Ramps count as settled too once ``settle_s`` has passed since the ramp began, because a
     ramp is a tracking task; only the time right after a step is excluded.
     """
-    import numpy as np
-
     t = np.asarray(t, dtype=float)
     mask = np.zeros(t.shape, dtype=bool)
     elapsed = 0.0

@@ -33,11 +33,8 @@ from __future__ import annotations
 
 import bisect
 import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields
-from typing import Any
-
-import numpy as np
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 from clutch_ros.rig.errors import RigConfigError, check_non_negative, check_positive
 
@@ -51,7 +48,7 @@ __all__ = [
     "TABLE4",
     "closed_loop_run",
     "rpm_to_rad_s",
-    "run_offline",
+
     "scenario_from_spec",
     "table3_run",
     "table4_run",
@@ -310,25 +307,3 @@ def scenario_from_spec(spec: str, repeat: bool = False) -> Scenario:
                              "table4:SEQ or closed_loop[:RPM,RPM,...[:SEGMENT_S]]") from err
     sc.repeat = bool(repeat)
     return sc
-
-
-def run_offline(plant: Any, scenario: Scenario, dt: float = 1e-3,
-                duration: float | None = None,
-                pressure_source: Callable[[float, Any], float] | None = None
-                ) -> dict[str, np.ndarray]:
-    """Run ``plant`` through ``scenario`` without a bus; return every signal as an array.
-
-    The plant is reset to the scenario's start temperature. Returns ``{RigSignals field:
-    array}`` with one row per step (arrays of arrays become 2-D: ``ff_voltages`` (n, 8),
-    ``normal_force`` (n, N) ...). Closed-loop scenarios need ``pressure_source(t [s], last
-    RigSignals or None) -> Pa``.
-    """
-    from clutch_ros.rig.simulator import RigSimulator
-
-    rows: list[Any] = []
-    sim = RigSimulator(plant, scenario, None, dt, pressure_source=pressure_source,
-                       on_step=rows.append)
-    sim.run(scenario.duration if duration is None else duration, realtime=False)
-    if not rows:
-        raise RigConfigError("the run is shorter than one step")
-    return {f.name: np.array([getattr(r, f.name) for r in rows]) for f in fields(rows[0])}

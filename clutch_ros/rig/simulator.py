@@ -26,17 +26,35 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, fields
+from typing import Any, Protocol
+
+import numpy as np
 
 from clutch_ros.rig.errors import RigConfigError, check_positive
+from clutch_ros.rig.plant import RigPlant, RigSignals
+from clutch_ros.rig.scenario import Scenario
 
-if TYPE_CHECKING:
-    from clutch_ros.rig.can_io import RigCanPort
-    from clutch_ros.rig.plant import RigPlant, RigSignals
-    from clutch_ros.rig.scenario import Scenario
+__all__ = ["CanPort", "RigSimulator", "RunStats", "run_offline"]
 
-__all__ = ["RigSimulator", "RunStats"]
+
+class CanPort(Protocol):
+    """What the simulator needs of a CAN port (:class:`clutch_ros.rig.can_io.RigCanPort`).
+
+    The simulator itself does not depend on python-can: a run without a bus (``port=None``,
+    golden data, tests of the model) works where python-can is not installed.
+    """
+
+    sent: int  # frames sent so far
+
+    def poll(self, now: float) -> int:
+        """Receive pending frames at ``now`` [s]; return the valid pump requests among them."""
+
+    def requested_pressure(self, now: float) -> float:
+        """Return the pressure [Pa] the pump follows at ``now`` [s]."""
+
+    def send_due(self, now: float, signals: Any, timestamp: float | None = None) -> int:
+        """Send the frames due at ``now`` [s] carrying ``signals``; return how many."""
 
 
 @dataclass
@@ -79,7 +97,7 @@ class RigSimulator:
 
     """
 
-    def __init__(self, plant: RigPlant, scenario: Scenario, port: RigCanPort | None = None,
+    def __init__(self, plant: RigPlant, scenario: Scenario, port: CanPort | None = None,
                  dt: float = 1e-3,
                  pressure_source: Callable[[float, RigSignals | None], float] | None = None,
                  on_step: Callable[[RigSignals], None] | None = None,
@@ -178,3 +196,23 @@ class RigSimulator:
         stats.sim_time = self.time
         stats.frames_sent = (self.port.sent - sent0) if self.port is not None else 0
         return stats
+
+
+def run_offline(plant: Any, scenario: Scenario, dt: float = 1e-3,
+                duration: float | None = None,
+                pressure_source: Callable[[float, Any], float] | None = None
+                ) -> dict[str, np.ndarray]:
+    """Run ``plant`` through ``scenario`` without a bus; return every signal as an array.
+
+    The plant is reset to the scenario's start temperature. Returns ``{RigSignals field:
+    array}`` with one row per step (arrays of arrays become 2-D: ``ff_voltages`` (n, 8),
+    ``normal_force`` (n, N) ...). Closed-loop scenarios need ``pressure_source(t [s], last
+    RigSignals or None) -> Pa``.
+    """
+    rows: list[Any] = []
+    sim = RigSimulator(plant, scenario, None, dt, pressure_source=pressure_source,
+                       on_step=rows.append)
+    sim.run(scenario.duration if duration is None else duration, realtime=False)
+    if not rows:
+        raise RigConfigError("the run is shorter than one step")
+    return {f.name: np.array([getattr(r, f.name) for r in rows]) for f in fields(rows[0])}

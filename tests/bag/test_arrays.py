@@ -5,11 +5,12 @@ import pytest
 
 from clutch_ros.bag.arrays import TemplateSerializer, read_columns, write_columns
 from clutch_ros.bag.errors import MessageFieldError
-from clutch_ros.bag.reader import open_bag, read_rig_states
-from clutch_ros.bag.simrun import START_NS, simulate_run, write_run
+from clutch_ros.bag.reader import open_bag
+from clutch_ros.bag.rig_states import read_rig_states
 from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, RIG_STATE, make_msg
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.errors import ConfigError
+from clutch_ros.offline.rig_runs import START_NS, simulate_run, write_run
 from clutch_ros.rig.scenario import table4_run
 
 from .conftest import STAMP_NS

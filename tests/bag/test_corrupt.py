@@ -14,7 +14,8 @@ from clutch_ros.bag.errors import (
     BagNotFoundError,
     UnknownTypeError,
 )
-from clutch_ros.bag.reader import check_bag, open_bag, read_rig_states
+from clutch_ros.bag.reader import check_bag, open_bag
+from clutch_ros.bag.rig_states import read_rig_states
 from clutch_ros.bag.typestore import RIG_STATE, clutch_typestore, rig_state_msg
 from clutch_ros.bag.writer import BagWriter
 

@@ -7,7 +7,8 @@ import pytest
 
 from clutch_ros.bag.csv_import import import_csv
 from clutch_ros.bag.errors import BagExistsError, CsvError
-from clutch_ros.bag.reader import open_bag, read_rig_states
+from clutch_ros.bag.reader import open_bag
+from clutch_ros.bag.rig_states import read_rig_states
 
 from .conftest import DATA, np_equal
 

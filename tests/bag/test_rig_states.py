@@ -5,7 +5,8 @@ import pytest
 
 from clutch_ros.bag.columns import ColumnDecoder, CorruptMessageError, columns_slow
 from clutch_ros.bag.errors import BagError
-from clutch_ros.bag.reader import open_bag, read_rig_states
+from clutch_ros.bag.reader import open_bag
+from clutch_ros.bag.rig_states import read_rig_states
 from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, RIG_STATE, rig_state_msg
 from clutch_ros.bag.writer import BagWriter
 

@@ -20,9 +20,9 @@ import pytest
 
 from clutch_ros.bag.arrays import read_columns
 from clutch_ros.bag.reader import check_bag
-from clutch_ros.bag.simrun import simulate_run, write_run
 from clutch_ros.cli import main as clutch
 from clutch_ros.cli.processes import NodeProcess, ros_param_args
+from clutch_ros.offline.rig_runs import simulate_run, write_run
 from clutch_ros.rig.scenario import table3_run
 from tests.conftest import REPO
 from tests.nodes.rclpy_harness import Harness

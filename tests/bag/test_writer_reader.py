@@ -10,8 +10,8 @@ from mcap_ros2.decoder import DecoderFactory
 
 from clutch_ros.bag.errors import BagError, BagExistsError, BagNotFoundError, UnknownTypeError
 from clutch_ros.bag.reader import check_bag, open_bag
-from clutch_ros.bag.typestore import RIG_STATE, rig_state_msg, stamp_to_ns
-from clutch_ros.bag.writer import BagWriter, topic_name, write_rig_states
+from clutch_ros.bag.typestore import RIG_STATE, rig_state_msg, stamp_to_ns, topic_name
+from clutch_ros.bag.writer import BagWriter, write_rig_states
 from clutch_ros.errors import ConfigError
 
 from .conftest import STAMP_NS, cdr, write_sample_bag

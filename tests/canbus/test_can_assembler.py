@@ -233,7 +233,7 @@ def test_socketcan_error_classes_and_listener_errors(db):
 
 
 def test_publish_pacer_trigger_rate_cap_and_fallback():
-    from clutch_ros.canbus.stats import PublishPacer
+    from clutch_ros.canbus.counters import PublishPacer
 
     fast, speed, temps = 0x100, 0x101, 0x110
     pacer = PublishPacer(1000.0, speed, frozenset({fast, speed, temps}))

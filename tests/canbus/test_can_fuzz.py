@@ -14,7 +14,7 @@ import pytest
 
 from clutch_ros.canbus.assembler import RigStateAssembler
 from clutch_ros.canbus.bus import BusConfig, ReconnectingBus
-from clutch_ros.canbus.pump import PumpCommandGate, PumpGateConfig
+from clutch_ros.canbus.pump_gate import PumpCommandGate, PumpGateConfig
 
 from .fuzzgen import check_counters, check_last_values, generate
 

@@ -16,9 +16,9 @@ import pytest
 from clutch_ros.bag.writer import write_rig_states
 from clutch_ros.cli import calibrate as calibrate_cmd
 from clutch_ros.cli import fit as fit_cmd
+from clutch_ros.config.params_file import load_flat, load_params
+from clutch_ros.config.presets import preset_path
 from clutch_ros.model.params import PARAMETER_SPECS, ClutchParams
-from clutch_ros.params_file import load_flat, load_params
-from clutch_ros.presets import preset_path
 from clutch_ros.rig import RigPlant, run_offline, table3_run
 
 START_NS = 1_700_000_000 * 1_000_000_000
@@ -199,9 +199,9 @@ def test_calibrate_compares_both_methods(bags, tmp_path, capsys):
 
 
 def test_validation_report_views(bags, tmp_path, capsys):
-    from clutch_ros.cli.validation_report import evaluation_from_batch, write_report
     from clutch_ros.model import estimate_batch
     from clutch_ros.model.identification import FitRun, evaluate
+    from clutch_ros.offline.validation_report import evaluation_from_batch, write_report
 
     models = {}
     for law in ("none", "ff_t"):

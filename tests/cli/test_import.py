@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from clutch_ros.bag.arrays import read_columns
-from clutch_ros.bag.reader import open_bag, read_rig_states
+from clutch_ros.bag.reader import open_bag
+from clutch_ros.bag.rig_states import read_rig_states
 from clutch_ros.canbus import RigDatabase
 from tests.conftest import REPO
 

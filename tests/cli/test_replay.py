@@ -19,13 +19,13 @@ import pytest
 
 from clutch_ros.bag.arrays import read_columns
 from clutch_ros.bag.reader import check_bag, open_bag
-from clutch_ros.bag.simrun import RigRun, simulate_run, write_run
 from clutch_ros.bag.typestore import torque_request_msg
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.cli import main as clutch_main
+from clutch_ros.config.params_file import load_params
+from clutch_ros.config.presets import preset_path
 from clutch_ros.model import TABLE7, ClutchEstimator, SampleRejected
-from clutch_ros.params_file import load_params
-from clutch_ros.presets import preset_path
+from clutch_ros.offline.rig_runs import RigRun, simulate_run, write_run
 from clutch_ros.rig.scenario import table3_run
 from tests.conftest import REPO
 

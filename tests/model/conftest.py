@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from clutch_ros.params_file import load_params
+from clutch_ros.config.params_file import load_params
 
 PARAMS_DIR = Path(__file__).resolve().parents[2] / "params"
 PRESETS = ("flexiforce_8", "test_a_organic13", "test_b_sintered10", "rig_truth")

@@ -11,6 +11,8 @@ import math
 import numpy as np
 import pytest
 
+from clutch_ros.config.params_file import load_params
+from clutch_ros.config.presets import preset_path
 from clutch_ros.model import ModelError, make_sequence, simulate
 from clutch_ros.model.identification import (
     FREE_PARAMETERS,
@@ -24,8 +26,6 @@ from clutch_ros.model.identification import (
     evaluate,
     fit,
 )
-from clutch_ros.params_file import load_params
-from clutch_ros.presets import preset_path
 from clutch_ros.rig import RigPlant, run_offline, table3_run
 
 #: no wall-time guard in tests: results must not depend on the machine's load
@@ -204,7 +204,7 @@ def test_bad_requests(rig_truth):
 
 
 def test_long_runs_are_segmented_within_the_budget():
-    from clutch_ros.model.fit_bench import RIG_TRUTH, generate_run
+    from benchmarks.model_fit import RIG_TRUTH, generate_run
 
     assert RIG_TRUTH == load_params(preset_path("rig_truth")).to_flat()
     truth = load_params(preset_path("rig_truth")).replace(**{"spline.law": "ff_t",

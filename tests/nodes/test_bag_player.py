@@ -22,10 +22,10 @@ import numpy as np
 import pytest
 
 from clutch_ros.bag.arrays import TemplateSerializer, write_columns
-from clutch_ros.bag.simrun import simulate_run, write_run
 from clutch_ros.bag.typestore import TORQUE_REQUEST
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.cli.processes import NodeProcess, ros_param_args
+from clutch_ros.offline.rig_runs import simulate_run, write_run
 from clutch_ros.rig.scenario import table3_run
 from tests.conftest import REPO
 from tests.nodes.rclpy_harness import Harness

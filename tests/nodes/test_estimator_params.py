@@ -107,9 +107,9 @@ def _model_reason(flat: dict, key: str, value) -> str:
 
 
 def test_runtime_change_keeps_the_pack_state(estimator):
+    from clutch_ros.config.params_file import load_params
     from clutch_ros.model import ClutchEstimator
     from clutch_ros.nodes.common import stamp_to_sec
-    from clutch_ros.params_file import load_params
 
     params = load_params(PRESET)
     mu_old = params.friction.mu_ref
@@ -168,7 +168,7 @@ def test_runtime_change_keeps_the_pack_state(estimator):
 def test_invalid_changes_are_rejected_with_the_models_reason(estimator):
     from rclpy.parameter import Parameter
 
-    from clutch_ros.params_file import load_flat, load_params
+    from clutch_ros.config.params_file import load_flat, load_params
 
     flat = {k: v for k, v in load_flat(PRESET).items() if k.split(".")[0] in
             ("clutch", "friction", "spline", "slip")}

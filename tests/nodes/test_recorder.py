@@ -23,8 +23,8 @@ import pytest
 
 from clutch_ros.bag.arrays import read_columns
 from clutch_ros.bag.reader import check_bag, open_bag
-from clutch_ros.bag.record import parse_counts
 from clutch_ros.cli.processes import NodeProcess
+from clutch_ros.nodes.loss_tracker import parse_counts
 from tests.nodes.rclpy_harness import Harness
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]

@@ -78,7 +78,8 @@ def test_table3_scenario_pressure_sequence_on_the_bus(tmp_path):
     from rclpy.parameter_client import AsyncParameterClient
 
     from clutch_ros.rig import RigPlant
-    from clutch_ros.rig.scenario import run_offline, scenario_from_spec
+    from clutch_ros.rig.scenario import scenario_from_spec
+    from clutch_ros.rig.simulator import run_offline
 
     scenario = scenario_from_spec("table3:1:10")  # 1 s lead-in, 10 s at 40 bar, 3 s lead-out
     truth = run_offline(RigPlant.from_file("rig_truth", seed=0), scenario)

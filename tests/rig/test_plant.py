@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
+from clutch_ros.config.params_file import load_params
+from clutch_ros.config.presets import preset_path
 from clutch_ros.model.pack import PackModel
-from clutch_ros.params_file import load_params
-from clutch_ros.presets import preset_path
 from clutch_ros.rig.errors import RigConfigError
 from clutch_ros.rig.plant import RigPlant, RigPlantParams
-from clutch_ros.rig.scenario import rpm_to_rad_s, run_offline, table3_run
+from clutch_ros.rig.scenario import rpm_to_rad_s, table3_run
+from clutch_ros.rig.simulator import run_offline
 from clutch_ros.rig.thermal import ThermalParams
 
 BAR = 1e5

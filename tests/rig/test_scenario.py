@@ -11,10 +11,10 @@ from clutch_ros.rig.scenario import (
     PiecewiseLinear,
     closed_loop_run,
     rpm_to_rad_s,
-    run_offline,
     table3_run,
     table4_run,
 )
+from clutch_ros.rig.simulator import run_offline
 
 BAR = 1e5
 

@@ -1,0 +1,88 @@
+"""Benchmark of the model core: ``python -m benchmarks.model_step [--lamellas N]``.
+
+For each spline law it prints the time per :meth:`PackModel.step` call [µs], the throughput
+of :func:`simulate` [samples/s] and both as a ratio to real time at 1 kHz (1000 samples per
+simulated second). Input: Table 3 at 10 rpm (step, incremented step, 4/12/24 s ramps, with
+lead-in/out), sampled at 1 ms, with the ``flexiforce_8`` parameters (N and law overridden).
+Each figure is the median of ``--repeat`` runs (wall clock, one core, no warm-up excluded
+except the first discretisation, which is cached before timing).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+
+import numpy as np
+
+from clutch_ros.model.pack import PackModel
+from clutch_ros.model.params import ClutchParams
+from clutch_ros.model.sequences import concatenate, table3
+from clutch_ros.model.simulate import simulate
+
+#: flexiforce_8 (params/flexiforce_8.yaml) as a dict, so the benchmark needs no YAML.
+BENCH_PARAMS = {
+    "clutch.lamella_count": 8, "clutch.effective_radius": 0.045, "clutch.piston_area": 3.75e-3,
+    "clutch.lamella_mass": 0.1, "clutch.lamella_stiffness": 4.0e8,
+    "clutch.lamella_damping": 4.0e7, "friction.mu_ref": 0.12, "friction.temperature_ref": 35.0,
+    "friction.temperature_slope": -0.0015, "friction.pressure_loss_at_ref": 0.05,
+    "friction.pressure_ref": 4.0e6, "friction.static_ratio": 1.15,
+    "friction.stribeck_speed": 0.5, "spline.law": "ff_t", "spline.gain": 0.3786,
+    "spline.time_constant": 0.9434,
+}
+LAWS = ("none", "ff_t", "ff_v", "coulomb")
+
+
+def bench_law(params, seq, repeat: int, step_samples: int) -> tuple[float, float]:
+    """Return (µs per step(), simulate() samples per second), medians of ``repeat`` runs."""
+    t, p, w, temp = seq.t, seq.actuating_pressure, seq.slip_speed, seq.lamella_temperature
+    n = min(step_samples, t.size - 1)
+    dts = np.diff(t).tolist()
+    pl, wl, tl = p.tolist(), w.tolist(), temp.tolist()
+    model = PackModel(params)
+    step_us, sim_rate = [], []
+    for _ in range(repeat):
+        model.reset(pl[0], tl[0], wl[0])
+        step = model.step
+        t0 = time.perf_counter()
+        for k in range(1, n + 1):
+            step(dts[k - 1], pl[k], wl[k], tl[k])
+        step_us.append((time.perf_counter() - t0) / n * 1e6)
+        t0 = time.perf_counter()
+        simulate(params, t, p, w, temp, model=model)
+        sim_rate.append(t.size / (time.perf_counter() - t0))
+    return statistics.median(step_us), statistics.median(sim_rate)
+
+
+def main(argv=None) -> int:
+    """Run the benchmark and print one line per law."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.model_step",
+                                     description=__doc__.splitlines()[0])
+    parser.add_argument("--lamellas", type=int, default=8, help="N (default 8)")
+    parser.add_argument("--repeat", type=int, default=5, help="runs per figure (median)")
+    parser.add_argument("--step-samples", type=int, default=30000,
+                        help="step() calls per run (default 30000)")
+    parser.add_argument("--dt", type=float, default=1e-3, help="sample time [s]")
+    args = parser.parse_args(argv)
+    base = ClutchParams.from_flat({**BENCH_PARAMS, "clutch.lamella_count": args.lamellas})
+    seq = concatenate(table3(10.0, args.dt), "table3_10rpm")
+    rate = 1.0 / args.dt
+    print(f"clutch_ros.model benchmark: N = {args.lamellas}, dt = {args.dt * 1e3:g} ms, "
+          f"input Table 3 at 10 rpm ({seq.t.size} samples, {seq.t[-1]:.1f} s), "
+          f"median of {args.repeat}")
+    print(f"{'law':8s} {'step() [us]':>12s} {'step x RT':>10s} {'simulate [samples/s]':>21s} "
+          f"{'simulate x RT':>14s}")
+    for law in LAWS:
+        params = base.with_law(law)
+        step_us, sim_rate = bench_law(params, seq, args.repeat, args.step_samples)
+        print(f"{law:8s} {step_us:12.1f} {1e6 / step_us / rate:10.0f} {sim_rate:21,.0f} "
+              f"{sim_rate / rate:14.0f}")
+    print("targets: step() <= 30 us, simulate() >= 500x real time at 1 kHz")
+    sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,111 @@
+"""Closed-loop figures of a demo run, computed from its bag (what was recorded is what counts).
+
+Times: rig samples carry the bus timestamp (wall clock on the simulated rig); the profile
+started at ``started_at`` on the same clock, so the request in force at a sample is
+``request_at(profile, stamp - started_at)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from clutch_ros.bag.reader import BagReader
+from clutch_ros.model.metrics import longest_run
+from clutch_ros.rig.request_profile import request_at, settled_mask
+
+__all__ = ["DemoSeries", "closed_loop_summary", "load_series"]
+
+BAND = 0.10  # ±10 % accuracy band (thesis)
+MIN_FRACTION = 0.05  # only requests above 5 % of the maximum count
+
+
+class DemoSeries:
+    """Arrays of a demo bag: rig samples, estimates and commands, on profile time [s]."""
+
+    def __init__(self, bag, profile, started_at: float):
+
+        rig_t, meas, press = [], [], []
+        est_t, model, ref, est_meas, pdiff = [], [], [], [], []
+        cmd_t, cmd_p = [], []
+        with BagReader(bag) as reader:
+            for topic, stamp_ns, msg in reader.messages(
+                    ["/rig_state", "/clutch_estimate", "/pressure_command"]):
+                if topic == "/rig_state":
+                    rig_t.append(_stamp(msg))
+                    meas.append(msg.measured_torque if msg.has_measured_torque else math.nan)
+                    press.append(msg.actuating_pressure)
+                elif topic == "/clutch_estimate":
+                    est_t.append(_stamp(msg))
+                    model.append(msg.modelled_torque)
+                    ref.append(msg.reference_torque)
+                    est_meas.append(msg.measured_torque)
+                    pdiff.append(msg.pressure_difference)
+                else:
+                    cmd_t.append(stamp_ns * 1e-9)
+                    cmd_p.append(msg.pressure)
+        self.rig_stamp = np.asarray(rig_t)
+        self.est_stamp = np.asarray(est_t)
+        self.rig_time = np.asarray(rig_t) - started_at
+        self.measured = np.asarray(meas)
+        self.pressure = np.asarray(press)
+        self.request = np.array([request_at(profile, t) for t in self.rig_time])
+        self.est_time = np.asarray(est_t) - started_at
+        self.modelled = np.asarray(model)
+        self.reference = np.asarray(ref)
+        self.est_measured = np.asarray(est_meas)
+        self.pressure_difference = np.asarray(pdiff)
+        self.cmd_time = np.asarray(cmd_t) - started_at
+        self.cmd_pressure = np.asarray(cmd_p)
+        self.settled = settled_mask(profile, self.rig_time)
+
+
+def _stamp(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def load_series(bag, profile, started_at: float) -> DemoSeries:
+    """Read a demo bag into :class:`DemoSeries`."""
+    return DemoSeries(bag, profile, started_at)
+
+
+def _rmse(a, b) -> float:
+    ok = np.isfinite(a) & np.isfinite(b)
+    return float(np.sqrt(np.mean((a[ok] - b[ok]) ** 2))) if ok.any() else math.nan
+
+
+def _coverage(rig_stamps, est_stamps) -> float:
+    """Fraction of rig samples since the first estimate that got an estimate (same stamp)."""
+    if not len(est_stamps):
+        return 0.0
+    live = rig_stamps[rig_stamps >= est_stamps.min()]
+    if not len(live):
+        return 0.0
+    have = set(np.round(est_stamps * 1e6).astype(np.int64).tolist())
+    return float(np.mean([v in have for v in np.round(live * 1e6).astype(np.int64).tolist()]))
+
+
+def closed_loop_summary(bag, profile, started_at: float) -> dict:
+    """Return the demo's figures (see :mod:`clutch_ros.cli.demo`) from its bag."""
+    s = load_series(bag, profile, started_at)
+    peak = max(max(seg.start, seg.end) for seg in profile)
+    use = s.settled & (s.request > MIN_FRACTION * peak) & np.isfinite(s.measured)
+    ratio = np.where(use, s.measured / np.where(use, s.request, 1.0), np.nan)
+    within = float(np.mean(np.abs(ratio[use] - 1.0) <= BAND)) if use.any() else math.nan
+    worst = float(np.nanmax(ratio)) if use.any() else math.nan
+    over = np.nan_to_num(ratio, nan=0.0) > 1.0 + BAND
+    return {
+        "within_10pct": within,
+        "estimate_coverage": _coverage(s.rig_stamp, s.est_stamp),
+        "settled_samples": int(use.sum()),
+        "worst_overshoot": worst,
+        "worst_undershoot": float(np.nanmin(ratio)) if use.any() else math.nan,
+        "longest_overshoot_s": longest_run(over, s.rig_time),
+        "estimator_rmse_nm": _rmse(s.modelled, s.est_measured),
+        "reference_rmse_nm": _rmse(s.reference, s.est_measured),
+        "rig_samples": int(len(s.rig_time)),
+        "estimates": int(len(s.est_time)),
+        "commands": int(len(s.cmd_time)),
+        "max_command_pa": float(s.cmd_pressure.max()) if len(s.cmd_pressure) else 0.0,
+    }

@@ -1,0 +1,198 @@
+"""PumpCommandGate: whatever the command, every frame stays within limits; watchdog; rate limit."""
+
+import math
+import random
+
+import pytest
+
+from clutch_ros.canbus.dbc import PumpRequestCodec
+from clutch_ros.canbus.pump_gate import PumpCommandGate, PumpGateConfig
+from clutch_ros.errors import ConfigError
+
+BAR = 1e5
+
+
+class FakeClock:
+    def __init__(self, t=100.0):
+        self.t = t
+
+    def __call__(self):
+        return self.t
+
+
+def make_gate(db, clock, **kwargs):
+    config = PumpGateConfig(**kwargs)
+    return PumpCommandGate(clock, config, PumpRequestCodec(db, config.max_pressure))
+
+
+def decoded(db, out):
+    pressure, counter, ok = PumpRequestCodec(db).decode(out.frame)
+    assert ok
+    assert pressure == pytest.approx(out.pressure, abs=1e-6)
+    return pressure, counter
+
+
+def test_no_command_yet_sends_zero(db):
+    gate = make_gate(db, FakeClock())
+    out = gate.tick()
+    assert out.pressure == 0.0 and out.limited and "no command" in out.reason
+    assert decoded(db, out) == (0.0, 0)
+
+
+def test_plain_command_passes_unchanged(db):
+    clock = FakeClock()
+    gate = make_gate(db, clock, rate_limit_up=math.inf)
+    out = gate.submit(12.3456e5)
+    assert out.pressure == pytest.approx(12.3456e5, abs=50.0)
+    assert not out.limited and out.reason == ""
+    frame, pressure, limited, reason = out  # the tuple form the bridge unpacks
+    assert frame is out.frame and pressure == out.pressure
+
+
+@pytest.mark.parametrize(
+    "command, words",
+    [(math.nan, "not finite"), (math.inf, "not finite"), (-math.inf, "not finite"),
+     (-3e5, "negative"), (None, "not finite"), ("12 bar", "not finite")],
+)
+def test_bad_commands_give_zero_with_reason(db, command, words):
+    clock = FakeClock()
+    gate = make_gate(db, clock, rate_limit_up=math.inf)
+    gate.submit(20e5)
+    clock.t += 0.01
+    out = gate.submit(command)
+    assert out.pressure == 0.0 and out.limited and words in out.reason
+    assert decoded(db, out)[0] == 0.0
+    assert gate.rejected_commands == 1
+    clock.t += 0.01
+    assert gate.tick().pressure == 0.0  # the reason stays until the next command
+
+
+@pytest.mark.parametrize("command", [40.0001e5, 1e9, 1e300, 5e5 * 1e6])
+def test_huge_commands_are_clamped(db, command):
+    gate = make_gate(db, FakeClock(), max_pressure=40e5, rate_limit_up=math.inf)
+    out = gate.submit(command)
+    assert out.pressure == pytest.approx(40e5) and out.limited and "clamped" in out.reason
+    assert decoded(db, out)[0] <= 40e5
+
+
+def test_watchdog_zeroes_within_timeout(db):
+    clock = FakeClock()
+    gate = make_gate(db, clock, rate_limit_up=math.inf, watchdog_timeout=0.1)
+    gate.submit(30e5)
+    t0 = clock.t
+    outputs = []
+    for _ in range(30):  # 10 ms PumpRequest cycle
+        clock.t += 0.01
+        outputs.append((clock.t - t0, gate.tick()))
+    held = [o for dt, o in outputs if dt <= 0.1 - 1e-9]
+    tripped = [(dt, o) for dt, o in outputs if o.pressure == 0.0]
+    assert all(o.pressure == pytest.approx(30e5) for o in held)
+    first_dt, first = tripped[0]
+    assert first_dt <= 0.1 + 0.01 + 1e-9  # zero within the timeout plus one cycle
+    assert "watchdog" in first.reason and first.limited
+    assert all(o.pressure == 0.0 for dt, o in outputs if dt > first_dt)
+    assert gate.watchdog_trips == 1  # one trip per command gap, not one per frame
+    clock.t += 0.01
+    assert gate.submit(10e5).pressure == pytest.approx(10e5)
+    clock.t += 0.5
+    gate.tick()
+    assert gate.watchdog_trips == 2
+
+
+def test_rate_limit_up_and_down(db):
+    clock = FakeClock()
+    gate = make_gate(db, clock, rate_limit_up=100 * BAR, rate_limit_down=50 * BAR,
+                     watchdog_timeout=10.0)
+    gate.submit(0.0)
+    previous = 0.0
+    gate.submit(20e5)
+    ramp = []
+    for _ in range(40):
+        clock.t += 0.01
+        out = gate.tick()
+        assert out.pressure - previous <= 1 * BAR + 100.0  # 100 bar/s * 10 ms (+resolution)
+        ramp.append(out)
+        previous = out.pressure
+    assert ramp[0].limited and "rate limited" in ramp[0].reason
+    assert ramp[-1].pressure == pytest.approx(20e5) and not ramp[-1].limited
+    gate.submit(10e5)
+    clock.t += 0.01
+    out = gate.tick()
+    assert out.pressure == pytest.approx(19.5e5)  # 50 bar/s down
+    out = gate.submit(math.nan)  # fail-safe: straight to 0 despite the down limit
+    assert out.pressure == 0.0
+
+
+def test_counter_rolls_and_checksums_hold(db):
+    clock = FakeClock()
+    gate = make_gate(db, clock)
+    counters = []
+    for i in range(40):
+        clock.t += 0.01
+        out = gate.submit(5e5) if i % 3 == 0 else gate.tick()
+        counters.append(decoded(db, out)[1])
+    assert counters == [i % 16 for i in range(40)]
+    assert gate.frames == 40
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_fuzz_no_frame_outside_limits(db, seed):
+    rng = random.Random(seed)
+    max_p = rng.uniform(0.5, 60.0) * BAR
+    rate = rng.choice([math.inf, rng.uniform(1, 500) * BAR])
+    timeout = rng.uniform(0.02, 0.5)
+    clock = FakeClock(rng.uniform(0, 1e6))
+    gate = make_gate(db, clock, max_pressure=max_p, rate_limit_up=rate, watchdog_timeout=timeout)
+    codec = PumpRequestCodec(db)
+    specials = [math.nan, math.inf, -math.inf, -0.0, 0.0, -1e-300, 5e-324, 1e308, -1e308,
+                None, "x", max_p, max_p + 1.0, max_p * 2, 60e5, 60.0001e5]
+    previous, last_command, expected_counter = 0.0, None, 0
+    for _ in range(3000):
+        step = rng.choice([0.0, 0.001, 0.01, 0.01, 0.05, rng.uniform(0, 1.0), -0.01])
+        clock.t += step
+        if rng.random() < 0.5:
+            command = rng.choice(specials) if rng.random() < 0.3 else rng.uniform(-10, 80) * BAR
+            out = gate.submit(command)
+            last_command = clock.t
+        else:
+            out = gate.tick()
+        pressure, counter, ok = codec.decode(out.frame)
+        assert ok and counter == expected_counter
+        expected_counter = (expected_counter + 1) % 16
+        assert 0.0 <= pressure <= max_p, (pressure, max_p)
+        assert pressure == pytest.approx(out.pressure, abs=1e-6)
+        assert out.limited == bool(out.reason)
+        if math.isfinite(rate) and step >= 0 and pressure > previous:
+            assert pressure - previous <= rate * max(step, 0.0) + codec.resolution + 1e-6
+        if last_command is None or (out is not None and clock.t - last_command > timeout):
+            assert pressure == 0.0  # no command yet, or the watchdog
+        previous = pressure
+
+
+def test_watchdog_fuzz_zero_after_timeout(db):
+    """Random command gaps: any tick later than the timeout after the last command is 0 bar."""
+    rng = random.Random(7)
+    clock = FakeClock()
+    gate = make_gate(db, clock, rate_limit_up=math.inf, watchdog_timeout=0.1)
+    last = None
+    for _ in range(2000):
+        clock.t += rng.choice([0.01, 0.03, 0.07, 0.15])
+        if rng.random() < 0.3:
+            gate.submit(rng.uniform(1, 40) * BAR)
+            last = clock.t
+        else:
+            out = gate.tick()
+            if last is not None and clock.t - last > 0.1:
+                assert out.pressure == 0.0 and "watchdog" in out.reason
+            elif last is not None:
+                assert out.pressure > 0.0
+
+
+def test_gate_config_validation(db):
+    for kwargs in ({"max_pressure": 0.0}, {"max_pressure": math.nan},
+                   {"rate_limit_up": 0.0}, {"rate_limit_down": math.nan},
+                   {"watchdog_timeout": 0.0}, {"watchdog_timeout": math.inf}):
+        with pytest.raises(ConfigError):
+            PumpGateConfig(**kwargs)
+    with pytest.raises(ConfigError):
+        PumpCommandGate(FakeClock(), PumpGateConfig(max_pressure=70e5))
