@@ -39,7 +39,7 @@ from clutch_ros.offline.flexiforce import load_runs
 
 __all__ = ["add_parser", "run", "main"]
 
-LAWS = ("none", "ff_t", "ff_v", "coulomb")
+LAWS = ("none", "ff_t", "ff_v", "coulomb", "ff_t_printed", "ff_v_printed")
 
 
 def add_parser(sub) -> None:

@@ -71,7 +71,8 @@ __all__ = [
 
 #: Default segment budget per law [decimated samples per residual evaluation]: a coulomb
 #: step (stick/slip active set) costs ~50 µs against ~3 µs for the others.
-SAMPLE_BUDGET = {"none": 20_000, "ff_t": 20_000, "ff_v": 15_000, "coulomb": 4_000}
+SAMPLE_BUDGET = {"none": 20_000, "ff_t": 5_000, "ff_v": 5_000, "coulomb": 4_000,
+                 "ff_t_printed": 20_000, "ff_v_printed": 15_000}
 
 
 # -- errors ---------------------------------------------------------------------------------
