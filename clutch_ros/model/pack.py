@@ -47,7 +47,7 @@ import numpy as np
 from clutch_ros.model.errors import InputError, NonFiniteSample
 from clutch_ros.model.film import film_equilibrium, film_step, thermal_step
 from clutch_ros.model.friction import mu_scalar, sign_scalar
-from clutch_ros.model.spline import make_spline_law
+from clutch_ros.model.spline_passive import make_spline_law
 from clutch_ros.model.statespace import (
     build_state_space,
     spring_force_matrix,

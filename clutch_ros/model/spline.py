@@ -54,8 +54,7 @@ import math
 
 import numpy as np
 
-__all__ = ["SplineLaw", "NoSplineFriction", "TorqueFilterLaw", "ViscousLaw", "CoulombLaw",
-           "make_spline_law"]
+__all__ = ["SplineLaw", "NoSplineFriction", "TorqueFilterLaw", "ViscousLaw", "CoulombLaw"]
 
 
 class SplineLaw:
@@ -461,11 +460,3 @@ class CoulombLaw(SplineLaw):
 _LAWS = {"none": SplineLaw, "ff_t_printed": TorqueFilterLaw, "ff_v_printed": ViscousLaw,
          "coulomb": CoulombLaw}
 
-
-def make_spline_law(params) -> SplineLaw:
-    """Return a fresh law object for ``params.spline.law`` (one per PackModel)."""
-    from clutch_ros.model.spline_passive import PASSIVE_FILTER_LAWS
-
-    name = params.spline.law
-    cls = _LAWS.get(name) or PASSIVE_FILTER_LAWS[name]
-    return cls(params)

@@ -52,10 +52,10 @@ import math
 
 import numpy as np
 
-from clutch_ros.model.spline import SplineLaw
+from clutch_ros.model.spline import _LAWS, SplineLaw
 
 __all__ = ["box_forces", "solve_box", "PassiveLaw", "PassiveTorqueFilterLaw",
-           "PassiveViscousLaw", "PASSIVE_FILTER_LAWS"]
+           "PassiveViscousLaw", "PASSIVE_FILTER_LAWS", "make_spline_law"]
 
 MAX_ACTIVE_SET_ITERATIONS = 64
 MAX_GAUSS_SEIDEL_SWEEPS = 10000
@@ -281,3 +281,10 @@ class PassiveViscousLaw(PassiveLaw):
 
 #: law name -> class of the passive filter laws
 PASSIVE_FILTER_LAWS = {"ff_t": PassiveTorqueFilterLaw, "ff_v": PassiveViscousLaw}
+
+
+def make_spline_law(params) -> SplineLaw:
+    """Return a fresh law object for ``params.spline.law`` (one per PackModel)."""
+    name = params.spline.law
+    cls = PASSIVE_FILTER_LAWS.get(name) or _LAWS[name]
+    return cls(params)
