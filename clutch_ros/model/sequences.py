@@ -48,7 +48,7 @@ __all__ = [
 ]
 
 BAR = 1e5  # [Pa]
-SEQUENCE_NAMES = ("step", "inc_step", "ramp4", "ramp12", "ramp24", "pbd", "pbd_release")
+SEQUENCE_NAMES = ("step", "inc_step", "ramp4", "ramp12", "ramp24", "pbd")
 
 
 def rpm_to_rad_s(rpm: float) -> float:
@@ -209,7 +209,8 @@ def make_sequence(name: str, slip_rpm: float = 10.0, dt: float = 1e-3,
         return pbd_sequence(slip_rpm, temperature, dt, **kwargs)
     if name == "pbd_release":
         return pbd_release_sequence(slip_rpm, temperature, dt, **kwargs)
-    raise InputError(f"unknown sequence {name!r} (one of {', '.join(SEQUENCE_NAMES)})")
+    raise InputError(f"unknown sequence {name!r} (one of {', '.join(SEQUENCE_NAMES)}, "
+                     "pbd_release)")
 
 
 def table3(slip_rpm: float = 10.0, dt: float = 1e-3) -> list[Sequence]:
