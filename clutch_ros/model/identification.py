@@ -126,6 +126,9 @@ _TRANSFORM = {
     "spline.time_constant": (True, 1.0),
     "spline.friction_coefficient": (True, 1.0),
     "clutch.lamella_damping": (True, 1.0),
+    "friction.film_depth": (False, 0.1),
+    "friction.film_recovery_time": (True, 1.0),
+    "friction.film_thinning_time": (True, 1.0),
 }
 _LOG_SPAN = math.log(1e3)  # log parameters may move three decades either way
 
