@@ -44,17 +44,19 @@ def film_shown(runs, *, min_standstill: float = 0.3, standstill_speed: float = 0
         if t.size < 3 or not np.isfinite(p).any():
             continue
         pressed = p > pressed_fraction * np.nanmax(p)
-        still = pressed & (w < standstill_speed)
-        since = None
+        since, held = None, 0.0  # start of the current pressed standstill, last one's length
         for k in range(t.size):
-            if still[k]:
+            if not pressed[k]:
+                since, held = None, 0.0
+            elif w[k] < standstill_speed:
                 since = t[k] if since is None else since
-            elif pressed[k] and w[k] > slip_speed and since is not None:
-                if t[k] - since >= min_standstill:
-                    return True
+                held = t[k] - since
+            else:
                 since = None
-            elif not pressed[k] or w[k] >= standstill_speed:
-                since = None
+                if w[k] > slip_speed:
+                    if held >= min_standstill:
+                        return True
+                    held = 0.0
     return False
 
 
