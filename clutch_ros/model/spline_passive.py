@@ -198,19 +198,31 @@ class PassiveLaw(SplineLaw):
         head = self._head
         normal = entry.passive_normal.dot(head)
         np.maximum(normal, 0.0, out=normal)
-        bound = (normal[:-1] + normal[1:]) * scale
-        hi = np.minimum(np.maximum(des, 0.0), bound)
-        lo = np.maximum(np.minimum(des, 0.0), -bound)
+        bound = normal[:-1] + normal[1:]
+        bound *= scale
+        clipped = np.clip(des, -bound, bound)
+        hi = np.maximum(clipped, 0.0)
+        lo = np.minimum(clipped, 0.0)
         f_stick = entry.passive_stick.dot(head)
         g = entry.passive_g
-        f = box_forces(g, f_stick, lo, hi, self._stuck, self._sigma, entry.passive_solves)
-        bad_stuck, bad_slide = _violations(g, f_stick, f, lo, hi, self._stuck, self._sigma)
-        if bad_stuck.any() or bad_slide.any():
-            f, self._stuck, self._sigma, self.iterations = solve_box(
-                g, entry.passive_h, f_stick, lo, hi, self._stuck, self._sigma,
-                entry.passive_solves)
+        stuck, sigma = self._stuck, self._sigma
+        if not stuck.any():  # fast path: the previous set had every lamella sliding
+            f = np.where(sigma > 0.0, hi, lo)
+            dz = g.dot(f - f_stick)
+            tol_z = -1e-12 * (float(np.abs(dz).max()) + 1e-15)
+            if ((sigma * dz >= tol_z) | (hi <= lo)).all():
+                self.iterations = 0
+                self._f[:] = f
+                return
         else:
-            self.iterations = 0
+            f = box_forces(g, f_stick, lo, hi, stuck, sigma, entry.passive_solves)
+            bad_stuck, bad_slide = _violations(g, f_stick, f, lo, hi, stuck, sigma)
+            if not (bad_stuck.any() or bad_slide.any()):
+                self.iterations = 0
+                self._f[:] = f
+                return
+        f, self._stuck, self._sigma, self.iterations = solve_box(
+            g, entry.passive_h, f_stick, lo, hi, stuck, sigma, entry.passive_solves)
         self._f[:] = f
 
 
