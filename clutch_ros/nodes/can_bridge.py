@@ -382,7 +382,11 @@ class CanBridgeNode(LifecycleNode):
         applied.header.stamp = self.get_clock().now().to_msg()
         applied.requested_torque = command.requested_torque if command else 0.0
         applied.predicted_torque = command.predicted_torque if command else 0.0
-        self._cmd_pub.publish(applied)
+        try:
+            self._cmd_pub.publish(applied)
+        except Exception:  # noqa: BLE001 - after SIGINT the context is gone; the frame went out
+            if self.context.ok():
+                raise
 
     # -- health ---------------------------------------------------------------------------
     def _diagnose(self):
