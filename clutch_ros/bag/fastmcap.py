@@ -116,11 +116,15 @@ class _Scan:
     def records(self, data: bytes) -> MessageBlock | None:
         """Locate the wanted messages among the records of one chunk (or a lone message).
 
-        The Python loop only finds record boundaries; record fields are then read for all
-        message records at once with numpy.
+        Record boundaries are found by walking the records; a run of message records of one
+        size (a fixed-layout message type, the usual case) is verified and taken in one numpy
+        step (:func:`_same_size_run`), so the Python loop runs once per run, not per message.
+        Record fields are then read for all message records at once with numpy.
         """
-        found: list[int] = []  # positions of message records
+        runs: list[np.ndarray] = []  # positions of message records, run by run
+        found: list[int] = []  # positions of single message records
         append, unpack = found.append, _LEN.unpack_from
+        buf = np.frombuffer(data + bytes(32), dtype=np.uint8)
         pos, end = 0, len(data)
         while pos < end:
             if pos + 9 > end:
@@ -128,16 +132,25 @@ class _Scan:
             op = data[pos]
             (size,) = unpack(data, pos + 1)
             if op == _OP_MESSAGE:
+                run = _same_size_run(buf, pos, 9 + size, end)
+                if run is not None:
+                    if found:
+                        runs.append(np.array(found, dtype=np.int64))
+                        found.clear()
+                    runs.append(run)
+                    pos += len(run) * (9 + size)
+                    continue
                 append(pos)
             elif op == _OP_CHANNEL:
                 self.channel(data[pos + 9 : pos + 9 + size])
             pos += 9 + size
         if pos != end:
             raise FastMcapError("record overruns its chunk")
-        if not found or not self.wanted:
+        if found:
+            runs.append(np.array(found, dtype=np.int64))
+        if not runs or not self.wanted:
             return None
-        buf = np.frombuffer(data + bytes(32), dtype=np.uint8)
-        at = np.array(found, dtype=np.int64)
+        at = runs[0] if len(runs) == 1 else np.concatenate(runs)
         size = _field(buf, at + 1, "<u8").astype(np.int64)
         if (size < 22).any():
             raise FastMcapError(f"message record of {int(size.min())} bytes in chunk")
@@ -148,6 +161,32 @@ class _Scan:
         at, size, chans = at[keep], size[keep], chans[keep]
         times = _field(buf, at + 15, "<u8").astype(np.int64)
         return MessageBlock(buf, at + 31, size - 22, times, chans)
+
+
+#: Shortest run of equal-size message records worth checking with numpy.
+_MIN_RUN = 16
+
+
+def _same_size_run(buf: np.ndarray, pos: int, stride: int, end: int) -> np.ndarray | None:
+    """Positions of the run of message records of length ``stride`` starting at ``pos``.
+
+    The record at ``pos`` is a message record of ``stride`` bytes (header included). The
+    records that would follow at the same stride are checked at once (opcode and length
+    field); the run ends before the first one that differs, or at ``end``. Every position
+    returned is a record boundary the record-by-record walk would also reach. None when the
+    run would be shorter than :data:`_MIN_RUN` (the walk is as fast then).
+    """
+    count = (end - pos) // stride
+    if count < _MIN_RUN:
+        return None
+    at = pos + stride * np.arange(count, dtype=np.int64)
+    same = (buf[at] == _OP_MESSAGE) & (_field(buf, at + 1, "<u8") == stride - 9)
+    if not same.all():
+        count = int(np.argmin(same))  # same[0] is true: count >= 1
+        if count < _MIN_RUN:
+            return None
+        at = at[:count]
+    return at
 
 
 def _field(buf: np.ndarray, pos: np.ndarray, dtype: str) -> np.ndarray:

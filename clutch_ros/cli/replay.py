@@ -20,16 +20,16 @@ written by ``clutch calibrate -o`` (``--calibration-file``). The work is done by
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
-from clutch_ros.cli.dispatch import emit_json
+from clutch_ros.cli.dispatch import add_batch_options, check_batch_options, emit_json
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
+from clutch_ros.offline.batch import run_jobs
+from clutch_ros.offline.replay import ReplayJob
 from clutch_ros.offline.replay import replay_bag as replay
-from clutch_ros.offline.replay import write_estimates
 from clutch_ros.offline.replay_report import ReplayReport
 
 __all__ = ["add_parser", "run", "replay_bag"]
@@ -53,6 +53,7 @@ def add_parser(sub) -> None:
                         "(accuracy, P_diff vs spline force, residual cross-correlation), and the "
                         "RMSE per sequence")
     add_calibration_options(p, "the report's measured P_diff (with --report)")
+    add_batch_options(p, "bags")
     p.add_argument("--json", action="store_true", help="print a JSON list, one object per bag")
     p.set_defaults(func=run)
 
@@ -81,16 +82,17 @@ def run(args) -> int:
         report = ReplayReport(Path(args.report), params, params.spline.law,
                               calibration=args.calibration,
                               fixed_calibration=calibration_from_args(args))
+    check_batch_options(args)
+    job = ReplayJob(params, storage=args.storage, keep_result=report is not None)
     results = []
-    for bag, out in zip(bags, outs):
-        start = time.perf_counter()
-        result = replay(bag, params)
-        summary = result.summary
-        seconds = time.perf_counter() - start
-        summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
-        if out is not None:
-            summary["estimates_written"] = write_estimates(out, result, storage=args.storage)
-            summary["output"] = str(out)
+    # serially, each bag's result is dropped before the next bag is read (bags may be
+    # large); in parallel, the workers return summaries only (whole results with --report)
+    if args.jobs == 1 and not args.cluster:
+        done = (job(item) for item in zip(bags, outs))
+    else:
+        done = iter(run_jobs(job, list(zip(bags, outs)), jobs=args.jobs,
+                             cluster=args.cluster))
+    for summary, result in done:
         if report is not None:
             summary["plots"] = report.add(result)
         results.append(summary)
@@ -98,7 +100,6 @@ def run(args) -> int:
     if report is not None:
         report.finish(results)
     if args.json:
-
         emit_json(results)
     else:
         for r in results:

@@ -32,6 +32,7 @@ from clutch_ros.model import accuracy_summary, estimate_batch, within_band
 
 __all__ = [
     "ESTIMATE_FIELDS",
+    "ReplayJob",
     "ReplayResult",
     "published_rows",
     "replay_bag",
@@ -125,6 +126,35 @@ def replay_bag(
         estimate_s=estimate_s,
     )
     return ReplayResult(path, rig, batch, summary)
+
+
+@dataclass(frozen=True)
+class ReplayJob:
+    """One bag of ``clutch replay`` as a picklable job (:func:`clutch_ros.offline.batch.run_jobs`).
+
+    Called with ``(bag, out)``: replays ``bag`` with ``params``, writes the estimates to
+    ``out`` (unless None, with ``storage``) and returns ``(summary, result)``: the summary
+    gains ``seconds`` (wall time of this bag [s]), ``samples_per_s`` and, when written,
+    ``estimates_written`` and ``output``; ``result`` is the whole :class:`ReplayResult` when
+    ``keep_result`` (a report needs it), else None (only the summary travels back).
+    """
+
+    params: Any
+    storage: str = "mcap"
+    keep_result: bool = False
+
+    def __call__(self, item: tuple[Path, Path | None]) -> tuple[dict[str, Any], Any]:
+        """Replay one ``(bag, out)`` pair."""
+        bag, out = item
+        start = time.perf_counter()
+        result = replay_bag(bag, self.params)
+        summary = result.summary
+        seconds = time.perf_counter() - start
+        summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
+        if out is not None:
+            summary["estimates_written"] = write_estimates(out, result, storage=self.storage)
+            summary["output"] = str(out)
+        return summary, (result if self.keep_result else None)
 
 
 def write_estimates(
