@@ -25,7 +25,7 @@ import numpy as np
 from clutch_ros.bag.arrays import TemplateSerializer, write_columns
 from clutch_ros.bag.errors import BagError
 from clutch_ros.bag.reader import BagReader
-from clutch_ros.bag.rig_states import RigStateArrays, read_rig_states
+from clutch_ros.bag.rig_states import REPLAY_FIELDS, RigStateArrays, read_rig_states
 from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, Typestore
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.model import accuracy_summary, estimate_batch, within_band
@@ -82,9 +82,18 @@ def published_rows(batch: Any) -> np.ndarray:
 
 
 def replay_bag(
-    bag: str | Path, params: Any, *, topic: str | None = None, store: Typestore | None = None
+    bag: str | Path,
+    params: Any,
+    *,
+    topic: str | None = None,
+    store: Typestore | None = None,
+    fields: Any = None,
 ) -> ReplayResult:
     """Run the estimator with ``params`` over the RigState stream of ``bag``.
+
+    ``fields``: the RigState fields read into ``result.rig`` (default every field;
+    :data:`~clutch_ros.bag.rig_states.REPLAY_FIELDS` is what the estimate needs, a smaller
+    and faster read).
 
     Raises:
         BagError: no RigState topic, or no messages; plus everything
@@ -93,7 +102,7 @@ def replay_bag(
     """
     path = Path(bag)
     start = time.perf_counter()
-    rig = read_rig_states(path, topic, store=store)
+    rig = read_rig_states(path, topic, store=store, fields=fields)
     read_s = time.perf_counter() - start
     if len(rig) == 0:
         raise BagError(path, f"no RigState messages on {rig.topic}")
@@ -147,7 +156,9 @@ class ReplayJob:
         """Replay one ``(bag, out)`` pair."""
         bag, out = item
         start = time.perf_counter()
-        result = replay_bag(bag, self.params)
+        # a report plots every field; otherwise read only what the estimate needs
+        fields = None if self.keep_result else REPLAY_FIELDS
+        result = replay_bag(bag, self.params, fields=fields)
         summary = result.summary
         seconds = time.perf_counter() - start
         summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
