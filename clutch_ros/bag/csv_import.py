@@ -1,9 +1,10 @@
 """Import a rig CSV export into a RigState bag (the ``clutch import FILE.csv`` back end).
 
-Contract (``DESIGN.md``): the header names carry units; ``time_s``, ``pressure_bar``,
-``lamella_temp_c`` and ``diff_speed_rpm`` are required; ``oil_temp_c``, ``input_speed_rpm``,
-``output_speed_rpm``, ``torque_nm``, ``torque_request_nm``, ``ff_front_1_v`` ... ``ff_front_4_v``,
-``ff_rear_1_v`` ... ``ff_rear_4_v``, ``wheel_fl_rpm``, ``wheel_fr_rpm``, ``wheel_rl_rpm``,
+Contract (README.md, "The clutch command"): the header names carry units; ``time_s``,
+``pressure_bar``, ``lamella_temp_c`` and ``diff_speed_rpm`` are required; ``oil_temp_c``,
+``input_speed_rpm``, ``output_speed_rpm``, ``torque_nm``, ``torque_request_nm``,
+``ff_front_1_v`` ... ``ff_front_4_v``, ``ff_rear_1_v`` ... ``ff_rear_4_v``, ``wheel_fl_rpm``,
+``wheel_fr_rpm``, ``wheel_rl_rpm``,
 ``wheel_rr_rpm`` and ``pump_current_a`` are optional. One ``RigState`` per data row on
 ``/rig_state`` (absolute, as ``ros2 bag record`` stores it), bag timestamp = header stamp =
 ``time_offset_ns`` + time.
@@ -41,6 +42,7 @@ from typing import Any, BinaryIO
 from clutch_ros.bag.errors import BagExistsError, CsvError
 from clutch_ros.bag.typestore import topic_name
 from clutch_ros.bag.writer import write_rig_states
+from clutch_ros.rigstate import CSV_UNITS, FIELDS
 
 __all__ = ["REQUIRED", "UNITS", "ImportSummary", "import_csv"]
 
@@ -59,22 +61,13 @@ UNITS: dict[str, dict[str, tuple[float, float]]] = {
     "current": {"a": (1.0, 0.0), "ma": (1e-3, 0.0)},
 }  # fmt: skip
 
-# column stem -> (RigState field or "time", quantity, canonical contract name)
+# column stem -> (RigState field or "time", quantity, canonical contract name), from the one
+# RigState field table (clutch_ros.rigstate)
 _STEMS: dict[str, tuple[str, str, str]] = {
     "time": ("time", "time", "time_s"),
-    "pressure": ("actuating_pressure", "pressure", "pressure_bar"),
-    "lamella_temp": ("lamella_temperature", "temperature", "lamella_temp_c"),
-    "diff_speed": ("slip_speed", "speed", "diff_speed_rpm"),
-    "oil_temp": ("oil_temperature", "temperature", "oil_temp_c"),
-    "input_speed": ("input_speed", "speed", "input_speed_rpm"),
-    "output_speed": ("output_speed", "speed", "output_speed_rpm"),
-    "torque": ("measured_torque", "torque", "torque_nm"),
-    "torque_request": ("torque_request", "torque", "torque_request_nm"),
-    "pump_current": ("pump_current", "current", "pump_current_a"),
-    **{f"ff_{side}_{i}": ("ff_voltages", "voltage", f"ff_{side}_{i}_v")
-       for side in ("front", "rear") for i in range(1, 5)},
-    **{f"wheel_{w}": ("wheel_speeds", "speed", f"wheel_{w}_rpm") for w in ("fl", "fr", "rl", "rr")},
-}  # fmt: skip
+    **{stem: (spec.name, spec.quantity, f"{stem}_{CSV_UNITS[spec.quantity]}")
+       for spec in FIELDS for stem in spec.csv_stems},
+}
 #: Required columns (canonical names; other units of the same quantity are accepted).
 REQUIRED = ("time_s", "pressure_bar", "lamella_temp_c", "diff_speed_rpm")
 _REQUIRED_STEMS = ("time", "pressure", "lamella_temp", "diff_speed")

@@ -23,7 +23,7 @@ Modules:
   ROS, and only when run).
 """
 
-from clutch_ros.canbus.assembler import RigSample, RigStateAssembler
+from clutch_ros.canbus.assembler import RigStateAssembler
 from clutch_ros.canbus.bus import BusConfig, LinkState, ReconnectingBus, open_bus
 from clutch_ros.canbus.dbc import PumpRequestCodec, RigDatabase
 from clutch_ros.canbus.errors import (
@@ -37,6 +37,7 @@ from clutch_ros.canbus.errors import (
 )
 from clutch_ros.canbus.logsource import LogSource
 from clutch_ros.canbus.pump_gate import GateOutput, PumpCommandGate, PumpGateConfig
+from clutch_ros.rigstate import RigSample
 
 __all__ = [
     "BusConfig",

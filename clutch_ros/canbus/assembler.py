@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import can
 
@@ -39,6 +39,7 @@ from clutch_ros.canbus.counters import CounterSnapshot, FrameCounters, classify_
 from clutch_ros.canbus.dbc import RigDatabase, counter_gap, frame_key
 from clutch_ros.canbus.errors import FrameDecodeError
 from clutch_ros.errors import ConfigError
+from clutch_ros.rigstate import FF_SIGNALS, WHEEL_SIGNALS, RigSample
 
 __all__ = [
     "DEFAULT_GROUPS",
@@ -71,9 +72,8 @@ DEFAULT_GROUPS: tuple[tuple[str, str, bool], ...] = (
     ("torque_request", "TorqueRequest", False),
 )
 
-_FF_FRONT = ("FF_Front1", "FF_Front2", "FF_Front3", "FF_Front4")
-_FF_REAR = ("FF_Rear1", "FF_Rear2", "FF_Rear3", "FF_Rear4")
-_WHEELS = ("WheelSpeedFL", "WheelSpeedFR", "WheelSpeedRL", "WheelSpeedRR")
+_FF_FRONT, _FF_REAR = (names for _, names in FF_SIGNALS)
+_WHEELS = WHEEL_SIGNALS[1]
 _PUMP_FAULTS = (
     "PumpSts_FltOverCurrent",
     "PumpSts_FltOverTemp",
@@ -86,35 +86,6 @@ _PUMP_FAULTS = (
 _NAN = float("nan")
 
 
-@dataclass
-class RigSample:
-    """One RigState sample in SI units (see ``msg_defs/msg/RigState.msg``).
-
-    Scalars never received are NaN (``torque_request`` 0.0). ``stamp`` [s] is the bus
-    timestamp of the newest contributing frame (None before any). ``stale_mask`` has bit i
-    set for stale group i; ``stale`` names them; ``ages`` [s] per group (inf if never).
-    ``pump_faults`` has bit i set for the i-th ``PumpSts_Flt*`` signal in DBC order.
-    """
-
-    stamp: float | None = None
-    actuating_pressure: float = _NAN  # [Pa]
-    lamella_temperature: float = _NAN  # [degC]
-    oil_temperature: float = _NAN  # [degC]
-    input_speed: float = _NAN  # [rad/s]
-    output_speed: float = _NAN  # [rad/s]
-    slip_speed: float = _NAN  # [rad/s] input_speed - output_speed
-    measured_torque: float = _NAN  # [N m]
-    has_measured_torque: bool = False
-    torque_request: float = 0.0  # [N m]
-    ff_voltages: list[float] = field(default_factory=list)  # [V] front 1-4, rear 1-4
-    wheel_speeds: list[float] = field(default_factory=list)  # [rad/s] FL, FR, RL, RR
-    pump_current: float = _NAN  # [A]
-    stale_mask: int = 0
-    stale: list[str] = field(default_factory=list)
-    ages: dict[str, float] = field(default_factory=dict)  # [s]
-    pump_pressure: float = _NAN  # [Pa] pump outlet pressure (PumpStatus)
-    pump_state: int = -1  # PumpSts_State (0 Off, 1 Ready, 2 Active, 3 Degraded, 4 Fault)
-    pump_faults: int = 0
 
 
 class RigStateAssembler(can.Listener):

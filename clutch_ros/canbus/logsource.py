@@ -24,8 +24,9 @@ from typing import Any
 import can
 from can.io.player import MESSAGE_READERS
 
-from clutch_ros.canbus.assembler import RigSample, RigStateAssembler
+from clutch_ros.canbus.assembler import RigStateAssembler
 from clutch_ros.canbus.errors import LogFileError
+from clutch_ros.rigstate import RigSample
 
 __all__ = ["LogSource", "supported_suffixes"]
 

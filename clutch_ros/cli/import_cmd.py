@@ -1,6 +1,6 @@
 """``clutch import FILE... -o BAG``: rig CSV or Vector ASC/BLF CAN logs -> RigState bags.
 
-CSV: the DESIGN.md columns (units in the header names, converted to SI), one message per row.
+CSV: the README.md columns (units in the header names, converted to SI), one message per row.
 CAN logs (any python-can log format, picked by suffix: .asc, .blf, .log, .trc, .csv of
 python-can ...): decoded through ``params/rig.dbc`` by the same path as the live bridge, one
 RigState per ``--period`` of log time in which a frame arrived (a sample repeating the last
@@ -13,7 +13,6 @@ goes to stderr when it is a terminal; an import that fails deletes its partial b
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 from pathlib import Path
@@ -24,6 +23,7 @@ from clutch_ros.bag.writer import BagWriter
 from clutch_ros.canbus import LogSource, RigDatabase, RigStateAssembler
 from clutch_ros.cli.dispatch import emit_json
 from clutch_ros.errors import ClutchError
+from clutch_ros.rigstate import msg_fields
 
 __all__ = ["add_parser", "run"]
 
@@ -150,8 +150,6 @@ def _import_can(path: Path, target: Path, args, progress) -> dict:
     source.check()
     assembler = RigStateAssembler(RigDatabase(args.dbc) if args.dbc else RigDatabase())
     size = max(path.stat().st_size, 1)
-    fields = ("actuating_pressure", "lamella_temperature", "oil_temperature", "input_speed",
-              "output_speed", "slip_speed", "measured_torque", "torque_request", "pump_current")
     counts = {"repeated": 0, "truncated": 0}
     writer = BagWriter(target, storage=args.storage, delete_on_error=True,
                        custom_data={"source": str(path)})
@@ -180,13 +178,8 @@ def _import_can(path: Path, target: Path, args, progress) -> dict:
                 counts["repeated"] += 1
                 continue
             last_ns = stamp_ns
-            values = {name: float(getattr(sample, name)) for name in fields}
-            values.update(has_measured_torque=bool(sample.has_measured_torque and
-                                                   math.isfinite(sample.measured_torque)),
-                          ff_voltages=list(sample.ff_voltages),
-                          wheel_speeds=list(sample.wheel_speeds),
-                          stale_mask=int(sample.stale_mask))
-            writer.write(rig_topic, stamp_ns, rig_state_msg(stamp_ns, frame_id="rig", **values))
+            writer.write(rig_topic, stamp_ns,
+                         rig_state_msg(stamp_ns, frame_id="rig", **msg_fields(sample)))
     rig_count = writer.written[rig_topic]
     counters = assembler.counters()
     first, last = (writer.first_ns or 0), (writer.last_ns or 0)

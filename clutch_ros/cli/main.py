@@ -25,6 +25,7 @@ SUBCOMMANDS = {
     "calibrate": "calibrate",
     "demo": "demo",
     "closed-loop": "closed_loop_cmd",
+    "dashboard": "dashboard",
 }
 
 

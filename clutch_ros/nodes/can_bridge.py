@@ -54,7 +54,7 @@ from clutch_ros.nodes.common import (
     run_node,
     sensor_qos,
 )
-from clutch_ros.nodes.convert import can_frame_msg, rig_state_msg
+from clutch_ros.nodes.convert import can_frame_to_ros, rig_state_to_ros
 
 NAME = "can_bridge"
 IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning
@@ -152,7 +152,7 @@ class CanBridgeNode(Node):
     def _on_frame(self, frame) -> None:
         """Notifier thread, after the assembler: raw topic, PumpRequests of others, publish."""
         if self._raw_pub is not None:
-            self._raw_pub.publish(can_frame_msg(frame, self._offset or 0.0))
+            self._raw_pub.publish(can_frame_to_ros(frame, self._offset or 0.0))
         if frame.is_error_frame or frame.is_remote_frame:
             return
         key = frame_key(frame.arbitration_id, frame.is_extended_id)
@@ -205,7 +205,7 @@ class CanBridgeNode(Node):
         self._last_stamp, self._last_new, self._stale = sample.stamp, time.monotonic(), \
             sample.stale
         self._stale_reports += bool(sample.stale_mask)
-        self._rig_pub.publish(rig_state_msg(sample, self._offset or 0.0))
+        self._rig_pub.publish(rig_state_to_ros(sample, self._offset or 0.0))
         self._published += 1
         return True
 

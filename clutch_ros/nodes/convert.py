@@ -7,8 +7,9 @@ import math
 from clutch_msgs.msg import CanFrame, RigState
 
 from clutch_ros.nodes.common import sec_to_stamp
+from clutch_ros.rigstate import fill_msg
 
-__all__ = ["can_frame_msg", "estimate_to_msg", "rig_state_msg"]
+__all__ = ["can_frame_to_ros", "estimate_to_msg", "rig_state_to_ros"]
 
 
 def estimate_to_msg(est, header, msg_type):
@@ -35,26 +36,17 @@ def estimate_to_msg(est, header, msg_type):
     return msg
 
 
-_FIELDS = ("actuating_pressure", "lamella_temperature", "oil_temperature", "input_speed",
-           "output_speed", "slip_speed", "measured_torque", "torque_request", "pump_current")
 
 
-def rig_state_msg(sample, offset: float = 0.0):
-    """Return a ``RigState`` of ``sample`` stamped ``sample.stamp + offset`` [s]."""
-    msg = RigState()
-    sec_to_stamp(sample.stamp + offset, msg.header.stamp)
-    msg.header.frame_id = "clutch"
-    for name in _FIELDS:
-        setattr(msg, name, float(getattr(sample, name)))
-    msg.has_measured_torque = bool(sample.has_measured_torque
-                                   and math.isfinite(sample.measured_torque))
-    msg.ff_voltages = [float(v) for v in sample.ff_voltages]
-    msg.wheel_speeds = [float(v) for v in sample.wheel_speeds]
-    msg.stale_mask = int(sample.stale_mask)
-    return msg
+def rig_state_to_ros(sample, offset: float = 0.0):
+    """Return an rclpy ``RigState`` of ``sample`` stamped ``sample.stamp + offset`` [s].
+
+    The fields come from :func:`clutch_ros.rigstate.fill_msg` (the one RigState mapping).
+    """
+    return fill_msg(RigState(), sample, sample.stamp + offset)
 
 
-def can_frame_msg(frame, offset: float = 0.0):
+def can_frame_to_ros(frame, offset: float = 0.0):
     """Return a ``CanFrame`` of a python-can frame (payload cut/padded to 8 bytes)."""
     msg = CanFrame()
     sec_to_stamp(frame.timestamp + offset, msg.header.stamp)

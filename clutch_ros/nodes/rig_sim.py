@@ -25,7 +25,8 @@ from rclpy.node import Node
 
 from clutch_ros.canbus import BusConfig, ReconnectingBus
 from clutch_ros.nodes.common import Diagnostics, ParamSpec, declare_params, run_node
-from clutch_ros.rig import RigCanPort, RigPlant, RigSimulator
+from clutch_ros.rig import RigPlant, RigSimulator
+from clutch_ros.rig.can_io import RigCanPort
 from clutch_ros.rig.scenario import ScenarioPoint, scenario_from_spec
 
 NAME = "rig_sim"

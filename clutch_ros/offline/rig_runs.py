@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from clutch_ros import rigstate
 from clutch_ros.bag.arrays import TemplateSerializer, write_columns
 from clutch_ros.bag.typestore import RIG_STATE
 from clutch_ros.bag.writer import BagWriter
@@ -35,12 +36,8 @@ __all__ = ["GOLDEN_RUNS", "START_NS", "RigRun", "golden_scenario", "simulate_run
 #: Stamp of simulation time 0 of every generated run [ns since epoch] (2023-11-14).
 START_NS = 1_700_000_000 * 1_000_000_000
 
-#: RigState scalar fields copied from the plant's signals.
-SCALARS = (
-    "actuating_pressure", "lamella_temperature", "oil_temperature", "input_speed",
-    "output_speed", "slip_speed", "measured_torque", "has_measured_torque", "torque_request",
-    "pump_current",
-)  # fmt: skip
+#: RigState scalar and flag fields copied from the plant's signals (same names).
+SCALARS = (*rigstate.SCALARS, "has_measured_torque")
 
 #: Golden run name -> (table, sequence, slip rpm or None for Table 4, plant noise seed).
 GOLDEN_RUNS: dict[str, tuple[int, int, float | None, int]] = {
