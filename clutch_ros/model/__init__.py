@@ -19,6 +19,11 @@ Every name is imported lazily from its module on first use (``_EXPORTS``).
 
 import importlib
 
+# Imported eagerly: the function ``simulate`` shares its name with its module, and a lazy
+# name would be shadowed by the submodule as soon as anything imports
+# ``clutch_ros.model.simulate`` (the pack, the estimator; replay needs them anyway).
+from clutch_ros.model.simulate import SimulationResult, simulate
+
 #: Defining module -> its public names. The package imports nothing until a name is used
 #: (PEP 562 ``__getattr__``), so ``clutch replay`` does not pay for scipy.optimize,
 #: scipy.stats and scipy.ndimage (identification, inverse, control), ~1-3 s of start-up.
@@ -72,9 +77,6 @@ _MODULES = {
         "SEQUENCE_NAMES", "Sequence", "concatenate", "incremented_step_sequence",
         "make_sequence", "pbd_sequence", "ramp_sequence", "rpm_to_rad_s",
         "step_sequence", "table3", "table4",
-    ),
-    "simulate": (
-        "SimulationResult", "simulate",
     ),
     "slip": (
         "SlipFilter", "base_speed", "lowpass_series", "slip_speed_from_shafts",
