@@ -142,3 +142,23 @@ def test_cli_bad_batch_input_is_one_line(tmp_path, args, message):
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], proc.stderr
+
+
+def fit_json(tmp_path, *args) -> dict:
+    """Run ``clutch fit --law none`` on two golden bags in this process; return its JSON."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = clutch_main(["fit", *map(str, BAGS[:2]), "--law", "none", "--max-seconds", "0",
+                            "-o", str(tmp_path / f"fit{len(args)}.yaml"), "--json",
+                            *map(str, args)])
+    assert code == 0
+    return json.loads(out.getvalue())
+
+
+def test_fit_with_jobs_and_cluster_gives_the_serial_fit(tmp_path, cluster):
+    serial = fit_json(tmp_path)
+    assert serial["rmse"] > 0 and serial["values"]
+    for args in (("--jobs", "2"), ("--cluster", cluster)):
+        doc = fit_json(tmp_path, *args)
+        for key in ("values", "stderr", "rmse", "run_rmse", "evaluations"):
+            assert doc[key] == serial[key], (args, key)
