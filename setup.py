@@ -26,6 +26,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/params",
          sorted(glob("params/*.yaml") + glob("params/*.dbc") + glob("params/*.json"))),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*.launch.xml"))),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

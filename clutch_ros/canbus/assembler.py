@@ -5,7 +5,8 @@
 from any other thread (the ROS timer). One lock guards the small per-frame update; decoding
 happens outside of it. A frame that cannot be decoded is counted and never stops the next.
 
-Signal groups and the ``stale_mask`` bits (one group per DBC frame):
+Signal groups and the ``stale_mask`` bits (:data:`clutch_ros.canbus.signal_map.GROUPS`; the
+frames are those the signal map names, here the default map of ``params/rig.dbc``):
 
 ===  ==================  =================  =========  ==================================
 bit  group               frame              required   RigState fields
@@ -20,17 +21,31 @@ bit  group               frame              required   RigState fields
 7    ``torque_request``   TorqueRequest      no         torque_request
 ===  ==================  =================  =========  ==================================
 
-A group is stale when it is older than its maximum age (default: 5 cycle times, at least
-10 ms: 10 ms for 1 ms frames, 50 ms for 10 ms frames, 500 ms for RigTemperatures), or when it
-is required and was never received. Optional groups never received are not stale; their
-arrays stay empty.
+A group fed by several frames (a rig DBC may put pressure and torque in two messages) is as old
+as its oldest frame and stale while one of them is missing; a group the map leaves unmapped is
+never stale. A group is stale when it is older than its maximum age (default: 5 cycle times, at
+least 10 ms: 10 ms for 1 ms frames, 50 ms for 10 ms frames, 500 ms for RigTemperatures), when it
+is required and was never received, when its newest frame held a value outside the DBC signal's
+range (that frame is counted as decode error ``range`` and its values are not used: the sample
+keeps the group's last valid values, flagged), or when a field it fills is NaN because it never
+arrived while a sibling did (``ff_voltages`` with only the rear FlexiForce frame: the front
+group is flagged). So every non-finite value of a sample is flagged, and every flagged group's
+values are either the last valid ones or NaN. Optional groups never received and without a
+sibling are not stale; their arrays stay empty.
+
+Data path: :meth:`RigStateAssembler.feed` decodes a frame and writes its values straight into
+the live sample (one dict lookup for the frame key, no re-assembly);
+:meth:`RigStateAssembler.snapshot` copies it and sets ``stale_mask``. Frames that are no valid
+CAN frame (an 11-bit identifier above 0x7FF, more than 8 bytes without the FD flag, a DLC that
+differs from the data length) are counted as decode error ``invalid_frame``.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import threading
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 import can
@@ -38,11 +53,11 @@ import can
 from clutch_ros.canbus.counters import CounterSnapshot, FrameCounters, classify_socketcan_error
 from clutch_ros.canbus.dbc import RigDatabase, counter_gap, frame_key
 from clutch_ros.canbus.errors import FrameDecodeError
+from clutch_ros.canbus.signal_map import GROUPS, ResolvedMap, SignalMap, Write
 from clutch_ros.errors import ConfigError
-from clutch_ros.rigstate import FF_SIGNALS, WHEEL_SIGNALS, RigSample
+from clutch_ros.rigstate import FIELDS, RigSample
 
 __all__ = [
-    "DEFAULT_GROUPS",
     "RigSample",
     "RigStateAssembler",
     "SignalGroup",
@@ -51,29 +66,21 @@ __all__ = [
 
 @dataclass(frozen=True)
 class SignalGroup:
-    """A group of signals sharing one frame: ``bit`` in ``stale_mask``, ``max_age`` [s]."""
+    """A group of signals: ``bit`` in ``stale_mask``, ``max_age`` [s], its DBC ``messages``."""
 
     name: str
-    message: str
+    messages: tuple[str, ...]
     bit: int
     max_age: float
     required: bool
 
+    @property
+    def message(self) -> str:
+        """The first DBC message of the group ("" when the map leaves it unmapped)."""
+        return self.messages[0] if self.messages else ""
 
-#: (group name, DBC message, required) in stale_mask bit order.
-DEFAULT_GROUPS: tuple[tuple[str, str, bool], ...] = (
-    ("pressure_torque", "RigFast", True),
-    ("shaft_speeds", "RigSpeed", True),
-    ("temperatures", "RigTemperatures", True),
-    ("pump_status", "PumpStatus", True),
-    ("ff_front", "FlexiForceFront", False),
-    ("ff_rear", "FlexiForceRear", False),
-    ("wheel_speeds", "WheelSpeeds", False),
-    ("torque_request", "TorqueRequest", False),
-)
 
-_FF_FRONT, _FF_REAR = (names for _, names in FF_SIGNALS)
-_WHEELS = WHEEL_SIGNALS[1]
+_ARRAY_LEN = {f.name: len(f.csv_stems) for f in FIELDS if f.kind == "array"}
 _PUMP_FAULTS = (
     "PumpSts_FltOverCurrent",
     "PumpSts_FltOverTemp",
@@ -86,8 +93,6 @@ _PUMP_FAULTS = (
 _NAN = float("nan")
 
 
-
-
 class RigStateAssembler(can.Listener):
     """Keep the latest decoded value of every rig signal and build :class:`RigSample`.
 
@@ -96,7 +101,8 @@ class RigStateAssembler(can.Listener):
     error class in their identifier (true for the socketcan interface only), so bus-off and
     controller-overflow error frames are counted apart. Raises
     :class:`clutch_ros.errors.ConfigError` for unknown group names or non-positive ages,
-    :class:`DbcError` when the DBC lacks a group's frame.
+    :class:`DbcError` when the DBC lacks a frame or signal of ``signal_map`` (default: the
+    map of ``params/rig.dbc``, :class:`~clutch_ros.canbus.signal_map.SignalMap`).
     """
 
     def __init__(
@@ -105,32 +111,34 @@ class RigStateAssembler(can.Listener):
         max_ages: Mapping[str, float] | None = None,
         required: Iterable[str] | None = None,
         socketcan_error_frames: bool = False,
+        signal_map: SignalMap | None = None,
     ) -> None:
         self.db = db if db is not None else RigDatabase()
+        #: the signal map checked against the DBC (also gives the pump request codec)
+        self.map: ResolvedMap = (signal_map or SignalMap.default()).resolve(self.db)
         max_ages = dict(max_ages or {})
-        names = {name for name, _, _ in DEFAULT_GROUPS}
+        names = {name for name, _, _ in GROUPS}
         required_set = set(required) if required is not None else None
         for name in set(max_ages) | (required_set or set()):
             if name not in names:
                 raise ConfigError(f"unknown signal group {name!r}; known: {sorted(names)}")
         groups = []
-        for bit, (name, message, req) in enumerate(DEFAULT_GROUPS):
-            spec = self.db.frame(message)
-            default_age = max(5.0 * (spec.cycle_time or 0.1), 0.01)
-            age = float(max_ages.get(name, default_age))
+        for bit, (name, keys, req) in enumerate(GROUPS):
+            messages = self.map.group_messages(keys)
+            cycle = max((self.db.frame(m).cycle_time or 0.1 for m in messages), default=0.1)
+            age = float(max_ages.get(name, max(5.0 * cycle, 0.01)))
             if not (math.isfinite(age) and age > 0.0):
                 raise ConfigError(f"max age of {name} must be > 0 s, got {age!r}")
-            groups.append(
-                SignalGroup(
-                    name=name,
-                    message=message,
-                    bit=bit,
-                    max_age=age,
-                    required=req if required_set is None else name in required_set,
-                )
-            )
+            groups.append(SignalGroup(name=name, messages=messages, bit=bit, max_age=age,
+                                      required=req if required_set is None
+                                      else name in required_set))
         self.groups: tuple[SignalGroup, ...] = tuple(groups)
-        self._group_key = {g.name: self.db.frame(g.message).key for g in self.groups}
+        #: frame key -> the writer of its mapped signals (rig frames only)
+        self._fill = {key: _filler(writes) for key, writes in self.map.writes.items()}
+        #: group name -> keys of its frames
+        self._group_keys = {g.name: tuple(self.db.frame(m).key for m in g.messages)
+                            for g in self.groups}
+        self._sibling = {"ff_front": "ff_rear", "ff_rear": "ff_front"}
         self._counter_signal = {
             spec.key: spec.counter_signal for spec in self.db.frames if spec.counter_signal
         }
@@ -139,61 +147,80 @@ class RigStateAssembler(can.Listener):
         self._socketcan_errors = socketcan_error_frames
         self._lock = threading.Lock()
         self._counters = FrameCounters()
-        self._latest: dict[int, tuple[float, dict[str, float | int]]] = {}
+        self._live = RigSample()
+        self._stamps: dict[int, float] = {}  # rig frame key -> bus time [s] of its newest valid
+        self._rejected: set[int] = set()  # rig frame keys whose newest frame was out of range
         self._last_counter: dict[int, tuple[float, int]] = {}
         self._newest_time: float | None = None
 
     # -- input ----------------------------------------------------------------------------
 
-    def feed(self, msg: can.Message) -> None:
-        """Count and, for known data frames, decode one frame. Never raises for bad frames."""
-        values = None
-        reason = None
-        key = None
-        kind = "error" if msg.is_error_frame else "remote" if msg.is_remote_frame else "data"
-        if kind == "data":
-            key = frame_key(msg.arbitration_id, msg.is_extended_id)
-            if key in self._known:
-                try:
-                    values = self.db.decode(msg.arbitration_id, msg.data, msg.is_extended_id)
-                except FrameDecodeError as err:
-                    reason = err.reason
-        elif kind == "remote":
-            key = frame_key(msg.arbitration_id, msg.is_extended_id)
-        stamp = float(msg.timestamp)
-        with self._lock:
-            c = self._counters
-            c.frames_total += 1
-            if kind == "error":
+    def feed(self, msg: can.Message) -> int | None:
+        """Count one frame and, for a rig data frame, decode it into the live sample.
+
+        Returns the frame key of a data frame (:func:`frame_key`), None for error, remote and
+        invalid frames. Never raises for bad frames.
+        """
+        if msg.is_error_frame:
+            with self._lock:
+                c = self._counters
+                c.frames_total += 1
                 c.error_frames += 1
                 if self._socketcan_errors:
                     bus_off, overflow = classify_socketcan_error(msg.arbitration_id, msg.data)
                     c.bus_off_frames += bus_off
                     c.controller_overflows += overflow
-                return
-            c.per_id[key] += 1
+            return None
+        key = frame_key(msg.arbitration_id, msg.is_extended_id)
+        valid = _valid_frame(msg)
+        values = reason = None
+        if valid and not msg.is_remote_frame and key in self._known:
+            try:
+                values = self.db.decode(msg.arbitration_id, msg.data, msg.is_extended_id)
+            except FrameDecodeError as err:
+                reason, values = err.reason, err.values
+        stamp = float(msg.timestamp)
+        with self._lock:
+            c = self._counters
+            c.frames_total += 1
             if msg.is_fd:
                 c.fd_frames += 1
-            if kind == "remote":
+            if msg.is_remote_frame:
                 c.remote_frames += 1
-                return
+                if key in self._known:
+                    c.per_id[key] += 1
+                return None
             c.data_frames += 1
+            if not valid:
+                c.decode_errors["invalid_frame"] += 1
+                return None
             if key not in self._known:
-                c.unknown_frames += 1
-                c.unknown_ids.add(key)
-                return
-            if values is None:
-                c.decode_errors[reason or "payload"] += 1
-                return
+                c.count_unknown(key)
+                return key
+            c.per_id[key] += 1
+            if reason is not None:
+                c.decode_errors[reason] += 1
+                if reason == "range":  # an intact frame: its counter still counts
+                    self._track_counter(key, stamp, values)
+                    if key in self._fill:
+                        self._rejected.add(key)
+                return key
             c.decoded_frames += 1
-            self._latest[key] = (stamp, values)
+            self._track_counter(key, stamp, values)
             if self._newest_time is None or stamp > self._newest_time:
                 self._newest_time = stamp
-            counter_name = self._counter_signal.get(key)
-            if counter_name is not None:
-                self._track_counter(key, stamp, int(values[counter_name]))
+            fill = self._fill.get(key)
+            if fill is not None:
+                fill(self._live, values)
+                self._stamps[key] = stamp
+                self._rejected.discard(key)
+        return key
 
-    def _track_counter(self, key: int, stamp: float, counter: int) -> None:
+    def _track_counter(self, key: int, stamp: float, values) -> None:
+        name = self._counter_signal.get(key)
+        if name is None or values is None:
+            return
+        counter = int(values[name])
         last = self._last_counter.get(key)
         self._last_counter[key] = (stamp, counter)
         if last is None:
@@ -237,65 +264,93 @@ class RigStateAssembler(can.Listener):
             return self._newest_time
 
     def snapshot(self, now: float | None = None) -> RigSample:
-        """Build a :class:`RigSample` from the latest values.
+        """Return a copy of the live :class:`RigSample` with ages and ``stale_mask`` set.
 
         ``now`` [s] is the current time in the bus time base, used for the age check; when
         None the newest decoded frame's timestamp is used (log replay).
         """
         with self._lock:
-            latest = {g.name: self._latest.get(self._group_key[g.name]) for g in self.groups}
+            sample = copy.copy(self._live)
+            sample.ff_voltages = list(self._live.ff_voltages)
+            sample.wheel_speeds = list(self._live.wheel_speeds)
+            stamps = dict(self._stamps)
+            rejected = set(self._rejected)
             newest = self._newest_time
         if now is None:
             now = newest if newest is not None else 0.0
-        sample = RigSample()
+        sample.ages, sample.stale, sample.stale_mask = {}, [], 0
+        received = {}
         for group in self.groups:
-            entry = latest[group.name]
-            age = math.inf if entry is None else max(0.0, now - entry[0])
-            sample.ages[group.name] = age
-            if (entry is None and group.required) or (entry is not None and age > group.max_age):
+            keys = self._group_keys[group.name]
+            seen = [stamps[k] for k in keys if k in stamps]
+            received[group.name] = bool(seen)
+            sample.ages[group.name] = max(0.0, now - min(seen)) if seen else math.inf
+        for group in self.groups:
+            keys = self._group_keys[group.name]
+            if not keys:
+                continue
+            seen = sum(k in stamps for k in keys)
+            sibling = self._sibling.get(group.name)
+            if (
+                (seen == 0 and (group.required or received.get(sibling, False)))
+                or 0 < seen < len(keys)
+                or (seen and sample.ages[group.name] > group.max_age)
+                or any(k in rejected for k in keys)
+            ):
                 sample.stale_mask |= 1 << group.bit
                 sample.stale.append(group.name)
-        stamps = [entry[0] for entry in latest.values() if entry is not None]
-        sample.stamp = max(stamps) if stamps else None
-        self._fill_values(sample, {k: (v[1] if v else None) for k, v in latest.items()})
+        sample.stamp = max(stamps.values()) if stamps else None
+        if sample.stale_mask & 1:  # pressure_torque stale: no valid measured torque
+            sample.has_measured_torque = False
         return sample
 
-    @staticmethod
-    def _fill_values(sample: RigSample, v: Mapping[str, Mapping[str, float | int] | None]) -> None:
-        fast = v["pressure_torque"]
-        if fast is not None:
-            sample.actuating_pressure = float(fast["ActuatingPressure"])
-            sample.measured_torque = float(fast["MeasuredTorque"])
-            sample.has_measured_torque = bool(fast["MeasuredTorqueValid"]) and not (
-                sample.stale_mask & 1
-            )
-        speeds = v["shaft_speeds"]
-        if speeds is not None:
-            sample.input_speed = float(speeds["InputShaftSpeed"])
-            sample.output_speed = float(speeds["OutputShaftSpeed"])
+
+def _valid_frame(msg: can.Message) -> bool:
+    """Return False for a frame no CAN controller could have sent (see module docstring)."""
+    limit = 0x20000000 if msg.is_extended_id else 0x800
+    size = len(msg.data)
+    if not 0 <= msg.arbitration_id < limit or size > (64 if msg.is_fd else 8):
+        return False
+    return msg.is_remote_frame or msg.dlc == size
+
+
+def _filler(writes: tuple[Write, ...]) -> Callable[[RigSample, Mapping[str, float | int]],
+                                                  None]:
+    """Return the function that writes one frame's decoded values into a sample.
+
+    Scalars and array elements get ``mult * value + offset``; ``has_measured_torque`` is the
+    mapped flag (else: the torque is finite), ``pump_state`` an int (its frame's
+    ``PumpSts_Flt*`` signals, when present, give ``pump_faults``), ``slip_speed`` is input minus
+    output speed unless mapped.
+    """
+    special = {"has_measured_torque", "pump_state"}
+    scalars = tuple((w.field, w.signal, w.mult, w.offset) for w in writes
+                    if w.index is None and w.field not in special)
+    elements = tuple((w.field, w.index, w.signal, w.mult, w.offset, _ARRAY_LEN[w.field])
+                     for w in writes if w.index is not None)
+    by_key = {w.key: w for w in writes}
+    valid = by_key["has_measured_torque"].signal if "has_measured_torque" in by_key else None
+    torque_only = valid is None and "measured_torque" in by_key
+    state = by_key["pump_state"].signal if "pump_state" in by_key else None
+    slip = "slip_speed" not in by_key and bool({"input_speed", "output_speed"} & set(by_key))
+
+    def fill(sample: RigSample, v: Mapping[str, float | int]) -> None:
+        for name, signal, mult, offset in scalars:
+            setattr(sample, name, mult * v[signal] + offset)
+        for name, index, signal, mult, offset, size in elements:
+            values = getattr(sample, name)
+            if not values:
+                values = [_NAN] * size
+                setattr(sample, name, values)
+            values[index] = mult * v[signal] + offset
+        if valid is not None:
+            sample.has_measured_torque = bool(v[valid])
+        elif torque_only:
+            sample.has_measured_torque = math.isfinite(sample.measured_torque)
+        if state is not None:
+            sample.pump_state = int(v[state])
+            sample.pump_faults = sum(1 << i for i, n in enumerate(_PUMP_FAULTS) if v.get(n))
+        if slip:
             sample.slip_speed = sample.input_speed - sample.output_speed
-        temps = v["temperatures"]
-        if temps is not None:
-            sample.lamella_temperature = float(temps["LamellaTemperature"])
-            sample.oil_temperature = float(temps["OilTemperature"])
-        pump = v["pump_status"]
-        if pump is not None:
-            sample.pump_current = float(pump["PumpSts_Current"])
-            sample.pump_pressure = float(pump["PumpSts_ActualPressure"])
-            sample.pump_state = int(pump["PumpSts_State"])
-            sample.pump_faults = sum(
-                1 << i for i, name in enumerate(_PUMP_FAULTS) if pump[name]
-            )
-        front, rear = v["ff_front"], v["ff_rear"]
-        if front is not None or rear is not None:
-            sample.ff_voltages = [
-                float(part[name]) if part is not None else _NAN
-                for part, names in ((front, _FF_FRONT), (rear, _FF_REAR))
-                for name in names
-            ]
-        wheels = v["wheel_speeds"]
-        if wheels is not None:
-            sample.wheel_speeds = [float(wheels[name]) for name in _WHEELS]
-        request = v["torque_request"]
-        if request is not None:
-            sample.torque_request = float(request["TorqueRequest"])
+
+    return fill

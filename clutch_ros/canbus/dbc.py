@@ -1,19 +1,10 @@
 """The rig's CAN database: strict DBC loading, SI decoding and encoding, E2E protection.
 
 The DBC (``params/rig.dbc``) carries bus units (bar, rpm, Nm, degC, V, A). This module is
-the one place where they are converted to and from SI:
-
-============  =========  ==================
-DBC unit      SI unit    factor (SI = f * bus)
-============  =========  ==================
-``bar``       Pa         1e5
-``rpm``       rad/s      2 pi / 60
-``Nm``        N m        1
-``degC``      degC       1 (temperatures stay in degrees Celsius, as in RigState)
-``V``         V          1
-``A``         A          1
-(none)        (none)     1 (counters, checksums, states, flags)
-============  =========  ==================
+the one place where they are converted to and from SI, with the factors of
+:data:`clutch_ros.canbus.units.UNIT_TO_SI` (``si = factor * bus``). A rig's own DBC may use
+units outside that table: loaded with ``strict_units=False`` such signals keep their bus
+value (factor 1, :attr:`SignalSpec.si_known` False) and a signal map must give their scale.
 
 Frames whose message attribute ``E2EChecksum`` is ``CRC8_SAE_J1850`` carry a 4-bit rolling
 counter (signal ``*_Counter``) and an 8-bit checksum in byte 0 (signal ``*_Checksum``): CRC-8
@@ -34,35 +25,16 @@ import cantools
 import cantools.database
 
 from clutch_ros.canbus.errors import DbcError, EncodeError, FrameDecodeError
+from clutch_ros.canbus.units import UNIT_TO_SI
 from clutch_ros.errors import ConfigError
 
 __all__ = [
-    "CAN_EFF_FLAG",
-    "UNIT_TO_SI",
-    "FrameSpec",
-    "RigDatabase",
-    "SignalSpec",
-    "PumpRequestCodec",
-    "counter_gap",
-    "crc8_sae_j1850",
-    "default_dbc_path",
-    "format_frame_key",
-    "frame_key",
+    "CAN_EFF_FLAG", "UNIT_TO_SI", "FrameSpec", "RigDatabase", "SignalSpec", "PumpRequestCodec",
+    "counter_gap", "crc8_sae_j1850", "default_dbc_path", "format_frame_key", "frame_key",
 ]
 
 #: Flag or-ed into a frame key for 29-bit identifiers (the SocketCAN ``CAN_EFF_FLAG``).
 CAN_EFF_FLAG = 0x80000000
-
-#: DBC unit -> (SI unit, factor): ``si_value = factor * bus_value``.
-UNIT_TO_SI: dict[str, tuple[str, float]] = {
-    "bar": ("Pa", 1e5),
-    "rpm": ("rad/s", 2.0 * math.pi / 60.0),
-    "Nm": ("N m", 1.0),
-    "degC": ("degC", 1.0),
-    "V": ("V", 1.0),
-    "A": ("A", 1.0),
-    "": ("", 1.0),
-}
 
 _E2E_ATTRIBUTE = "E2EChecksum"
 _E2E_CRC8 = "CRC8_SAE_J1850"
@@ -134,7 +106,8 @@ class SignalSpec:
     """One DBC signal with its SI conversion.
 
     ``factor`` converts bus to SI (``si = factor * bus``); ``minimum``/``maximum`` and
-    ``resolution`` are in SI units (``si_unit``); ``unit`` is the DBC unit.
+    ``resolution`` are in SI units (``si_unit``); ``unit`` is the DBC unit. ``si_known`` is
+    False for a unit outside :data:`UNIT_TO_SI` (then ``si_unit`` is the DBC unit, factor 1).
     """
 
     name: str
@@ -145,6 +118,7 @@ class SignalSpec:
     maximum: float | None
     resolution: float
     choices: Mapping[int, str]
+    si_known: bool = True
 
 
 @dataclass(frozen=True)
@@ -175,12 +149,14 @@ class RigDatabase:
     """The rig CAN database, loaded strictly, decoding to and encoding from SI values.
 
     ``path`` defaults to :func:`default_dbc_path`. Raises :class:`DbcError` naming the file
-    when it is missing, does not parse strictly, uses a unit outside :data:`UNIT_TO_SI`, or an
-    E2E frame lacks its checksum (8 bits at bit 0) or counter signal.
+    when it is missing, does not parse strictly, uses a unit outside :data:`UNIT_TO_SI`
+    (unless ``strict_units`` is False), or an E2E frame lacks its checksum (8 bits at bit 0)
+    or counter signal.
     """
 
-    def __init__(self, path: str | Path | None = None) -> None:
+    def __init__(self, path: str | Path | None = None, strict_units: bool = True) -> None:
         self.path = Path(path) if path is not None else default_dbc_path()
+        self.strict_units = strict_units
         try:
             self._db = cantools.database.load_file(str(self.path), strict=True)
         except FileNotFoundError as err:
@@ -195,6 +171,7 @@ class RigDatabase:
         self._by_name: dict[str, FrameSpec] = {}
         self._messages: dict[int, cantools.database.can.Message] = {}
         self._factors: dict[int, tuple[tuple[str, float], ...]] = {}
+        self._ranges: dict[int, tuple[tuple[str, float, float], ...]] = {}
         self._signals: dict[str, SignalSpec] = {}
         for message in self._db.messages:
             spec = self._make_spec(message)
@@ -206,17 +183,23 @@ class RigDatabase:
             )
             for sig in spec.signals:
                 self._signals[sig.name] = sig
+            # [min, max] in SI, widened by half a resolution step against rounding; a DBC
+            # range of [0|0] means "none"
+            self._ranges[spec.key] = tuple(
+                (sig.name, sig.minimum - 0.5 * sig.resolution, sig.maximum + 0.5 * sig.resolution)
+                for sig in spec.signals if sig.minimum is not None and sig.maximum is not None
+                and not sig.minimum == sig.maximum == 0.0)
 
     def _make_spec(self, message: cantools.database.can.Message) -> FrameSpec:
         signals = []
         for sig in message.signals:
             unit = sig.unit or ""
-            if unit not in UNIT_TO_SI:
+            if unit not in UNIT_TO_SI and self.strict_units:
                 raise DbcError(
                     f"{self.path}: signal {message.name}.{sig.name} has unit {unit!r}; "
                     f"known units: {sorted(UNIT_TO_SI)}"
                 )
-            si_unit, factor = UNIT_TO_SI[unit]
+            si_unit, factor = UNIT_TO_SI.get(unit, (unit, 1.0))
             signals.append(
                 SignalSpec(
                     name=sig.name,
@@ -227,6 +210,7 @@ class RigDatabase:
                     maximum=None if sig.maximum is None else sig.maximum * factor,
                     resolution=abs(sig.scale) * factor,
                     choices={int(k): str(v) for k, v in (sig.choices or {}).items()},
+                    si_known=unit in UNIT_TO_SI,
                 )
             )
         counter = next((s.name for s in message.signals if s.name.endswith("_Counter")), None)
@@ -296,6 +280,7 @@ class RigDatabase:
         data: bytes | bytearray,
         is_extended: bool = False,
         check_e2e: bool = True,
+        check_range: bool = True,
     ) -> dict[str, float | int]:
         """Decode a payload of a known frame into ``{signal: SI value}``.
 
@@ -303,7 +288,9 @@ class RigDatabase:
         integers (choices are not converted to strings). Raises :class:`FrameDecodeError`
         with ``reason`` ``"unknown"`` (id not in the DBC), ``"dlc"`` (length differs from
         the DBC), ``"checksum"`` (E2E checksum wrong; not checked when ``check_e2e`` is
-        False) or ``"payload"``.
+        False), ``"payload"`` or ``"range"`` (a value outside its signal's DBC range, e.g. a
+        lamella temperature of -326 degC for a signal defined on -40..320; not checked when
+        ``check_range`` is False; the error carries the decoded ``values``).
         """
         key = frame_key(arbitration_id, is_extended)
         spec = self._by_key.get(key)
@@ -328,6 +315,11 @@ class RigDatabase:
         out: dict[str, float | int] = dict(values)  # type: ignore[arg-type]
         for name, factor in self._factors[key]:
             out[name] = out[name] * factor
+        bad = check_range and tuple(n for n, lo, hi in self._ranges[key] if not lo <= out[n] <= hi)
+        if bad:
+            text = ", ".join(f"{n} = {out[n]:g}" for n in bad)
+            raise FrameDecodeError(f"{spec.name}: {text} outside the DBC range", "range",
+                                   values=out, signals=bad)
         return out
 
     def decode_message(self, msg: can.Message) -> tuple[FrameSpec, dict[str, float | int]]:
@@ -411,18 +403,25 @@ class PumpRequestCodec:
     ``max_pressure`` [Pa] is the largest pressure :meth:`encode` accepts (default: the DBC
     maximum of ``PumpReq_Pressure``, 60 bar); it must not exceed the DBC maximum.
     ``resolution`` is 100 Pa (0.001 bar). Raises :class:`clutch_ros.errors.ConfigError` for a
-    bad ``max_pressure``.
+    bad ``max_pressure``. ``message`` and ``pressure`` name the frame and its pressure signal
+    (defaults: ``PumpRequest.PumpReq_Pressure`` of ``params/rig.dbc``); the signal's unit must
+    convert to Pa.
     """
 
     MESSAGE = "PumpRequest"
     PRESSURE = "PumpReq_Pressure"
 
-    def __init__(self, db: RigDatabase | None = None, max_pressure: float | None = None) -> None:
+    def __init__(self, db: RigDatabase | None = None, max_pressure: float | None = None,
+                 message: str | None = None, pressure: str | None = None) -> None:
         self.db = db if db is not None else RigDatabase()
+        self.MESSAGE, self.PRESSURE = message or self.MESSAGE, pressure or self.PRESSURE
         self.spec = self.db.frame(self.MESSAGE)
         if not self.spec.e2e or self.spec.counter_signal is None:
             raise DbcError(f"{self.db.path}: {self.MESSAGE} is not E2E protected")
         sig = self.db.signal(self.PRESSURE)
+        if sig.si_unit != "Pa" or sig.name not in {s.name for s in self.spec.signals}:
+            raise DbcError(f"{self.db.path}: {self.MESSAGE}.{self.PRESSURE} must be a pressure "
+                           f"signal of {self.MESSAGE} (unit bar, kPa, ...), has {sig.unit!r}")
         if sig.maximum is None or sig.minimum != 0.0:
             raise DbcError(f"{self.db.path}: {self.PRESSURE} must have the range [0|max]")
         self.resolution = sig.resolution
@@ -486,8 +485,8 @@ class PumpRequestCodec:
             data = bytes(frame.data)
         else:
             data = bytes(frame)
-        values = self.db.decode(
-            self.spec.frame_id, data, self.spec.is_extended, check_e2e=False
+        values = self.db.decode(  # the receiver judges checksum and range itself
+            self.spec.frame_id, data, self.spec.is_extended, check_e2e=False, check_range=False
         )
         checksum_ok = crc8_sae_j1850(data[1:]) == data[0]
         assert self.spec.counter_signal is not None

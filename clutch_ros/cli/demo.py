@@ -167,6 +167,7 @@ def _drive(profile, procs, out: Path, args):
             executor.spin_once(timeout_sec=0.01)
         _say("")
     finally:
+        recorder.drain(executor, quiet=0.3, limit=3.0)  # what DDS still queues: into the bag
         executor.shutdown()
         written = recorder.close()
         recorder.destroy_node()

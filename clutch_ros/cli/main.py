@@ -26,6 +26,7 @@ SUBCOMMANDS = {
     "demo": "demo",
     "closed-loop": "closed_loop_cmd",
     "dashboard": "dashboard",
+    "up": "up",
 }
 
 

@@ -20,8 +20,11 @@ written by ``clutch calibrate -o`` (``--calibration-file``). The work is done by
 from __future__ import annotations
 
 import sys
+import tempfile
+import time
 from pathlib import Path
 
+from clutch_ros.bag.recover import recover_bag
 from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
 from clutch_ros.cli.dispatch import add_batch_options, check_batch_options, emit_json
 from clutch_ros.config.params_file import load_params
@@ -54,6 +57,11 @@ def add_parser(sub) -> None:
                         "RMSE per sequence")
     add_calibration_options(p, "the report's measured P_diff (with --report)")
     add_batch_options(p, "bags")
+    p.add_argument("--topic", help="RigState topic to replay (default: the bag's only "
+                   "RigState topic)")
+    p.add_argument("--recover", action="store_true",
+                   help="damaged MCAP bags: replay every intact chunk and report what was "
+                        "skipped (messages, time ranges) under 'recovery'")
     p.add_argument("--json", action="store_true", help="print a JSON list, one object per bag")
     p.set_defaults(func=run)
 
@@ -85,18 +93,40 @@ def run(args) -> int:
     check_batch_options(args)
     job = ReplayJob(params, storage=args.storage, keep_result=report is not None)
     results = []
+    if args.recover and args.cluster:
+        raise ClutchError("--recover writes the recovered bags to a local scratch directory; "
+                          "it cannot be combined with --cluster")
+    job = ReplayJob(params, storage=args.storage, keep_result=report is not None,
+                    topic=args.topic)
+    results = []
+    scratch = tempfile.TemporaryDirectory(prefix="clutch-recover-") if args.recover else None
+    items, recoveries = [], []
+    for index, (bag, out) in enumerate(zip(bags, outs)):
+        recovery, spent = None, 0.0
+        if scratch is not None:
+            start = time.perf_counter()
+            recovery = recover_bag(bag, Path(scratch.name) / f"{index}")
+            spent = time.perf_counter() - start
+            _say_recovery(recovery)
+        items.append((Path(recovery["recovered_bag"]) if recovery else bag, out))
+        recoveries.append((bag, recovery, spent))
     # serially, each bag's result is dropped before the next bag is read (bags may be
     # large); in parallel, the workers return summaries only (whole results with --report)
     if args.jobs == 1 and not args.cluster:
-        done = (job(item) for item in zip(bags, outs))
+        done = (job(item) for item in items)
     else:
-        done = iter(run_jobs(job, list(zip(bags, outs)), jobs=args.jobs,
-                             cluster=args.cluster))
-    for summary, result in done:
+        done = iter(run_jobs(job, items, jobs=args.jobs, cluster=args.cluster))
+    for (bag, recovery, spent), (summary, result) in zip(recoveries, done):
+        if recovery is not None:
+            seconds = summary["seconds"] + spent
+            summary.update(bag=str(bag), recovery=recovery, seconds=seconds,
+                           samples_per_s=summary["samples"] / max(seconds, 1e-9))
         if report is not None:
             summary["plots"] = report.add(result)
         results.append(summary)
         del result  # the report keeps what it needs; the next bag may be large
+    if scratch is not None:
+        scratch.cleanup()
     if report is not None:
         report.finish(results)
     if args.json:
@@ -112,6 +142,18 @@ def run(args) -> int:
             plots = {p for r in results for p in r["plots"]}
             sys.stdout.write(f"report: {len(plots)} PNG files in {args.report}\n")
     return 0
+
+
+def _say_recovery(rep: dict) -> None:
+    """One stderr line per skipped region of a recovered bag, and the missing counts."""
+    for s in rep["skipped"]:
+        span = "" if s["start_s"] is None else f", messages {s['start_s']:.3f}..{s['end_s']:.3f} s"
+        count = "" if s["messages"] is None else f", {s['messages']} messages"
+        sys.stderr.write(f"clutch replay: {rep['bag']}: skipped {s['bytes']} bytes at offset "
+                         f"{s['offset']} ({s['reason']}{count}{span})\n")
+    if rep["missing"]:
+        sys.stderr.write(f"clutch replay: {rep['bag']}: recovered {rep['recovered']}, missing "
+                         f"{rep['missing']} of the declared counts\n")
 
 
 def _outputs(bags, output):

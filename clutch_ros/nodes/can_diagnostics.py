@@ -4,16 +4,41 @@
 link is down; WARN when no rig frame arrived since the previous report, required signal
 groups are stale, frames were dropped, decode or error frames were seen since the previous
 report, another node sent PumpRequest frames (the bridge's own echo is removed by the bus,
-so any PumpRequest received means a second master on the pump), or the pump watchdog
-tripped; OK otherwise. Counts are totals since start; rates are per second since the
-previous report.
+so any PumpRequest received means a second master on the pump), malformed datagrams were
+dropped, pressure commands were refused (stale, future, out of order, unstamped, foreign
+source), or the pump watchdog tripped; ERROR as well when more than one node publishes
+``pressure_command``. OK otherwise. Counts are totals since start; rates are per second
+since the previous report.
+
+Size: the values are bounded whatever the bus carries (per-identifier rates for the DBC's
+frames only, the ten most frequent unknown identifiers in one value with the rest summed,
+reasons from fixed sets); :data:`MAX_VALUES` is a last guard.
 """
 
 from __future__ import annotations
 
 import time
 
-__all__ = ["bridge_status"]
+__all__ = ["MAX_VALUES", "SOFTWARE_BUSES", "bridge_status", "hardware_id", "node_status"]
+
+#: python-can interfaces without hardware: here they carry the simulated rig (rig_sim)
+SOFTWARE_BUSES = ("udp_multicast", "virtual")
+
+
+def hardware_id(params) -> str:
+    """Return the bridge's diagnostics ``hardware_id`` from its parameters.
+
+    ``interface:channel`` (``socketcan:can0``); ``simulated rig (interface:channel)`` on a
+    software bus (:data:`SOFTWARE_BUSES`, where ``rig_sim`` speaks, the same id it reports);
+    ``log:PATH`` when replaying ``input.log_file``.
+    """
+    if params.get("input.log_file"):
+        return f"log:{params['input.log_file']}"
+    bus = f"{params['can.interface']}:{params['can.channel']}"
+    return f"simulated rig ({bus})" if params["can.interface"] in SOFTWARE_BUSES else bus
+
+#: Most key/values one status carries (a guard; the values are bounded by construction).
+MAX_VALUES = 200
 
 _previous: dict[int, dict] = {}
 
@@ -37,10 +62,15 @@ def bridge_status(assembler, bus, gate, rig_keys, extra: dict):
         "remote_frames": c.remote_frames, "fd_frames": c.fd_frames,
         "dropped_frames": c.dropped_frames, "counter_repeats": c.counter_repeats,
         "listener_errors": c.listener_errors,
+        "unknown_frames_untracked": c.unknown_untracked,
         "pump_request_pa": gate.applied_pressure, "pump_frames": gate.frames,
+        "pump_immediate_frames": gate.immediate_frames,
         "pump_commands": gate.commands, "pump_rejected_commands": gate.rejected_commands,
+        "pump_refused_commands": sum(gate.refused.values()),
+        "pump_last_refusal": gate.last_refusal,
         "watchdog_trips": gate.watchdog_trips, **extra,
     }
+    values.update({f"pump_refused_{k}": n for k, n in sorted(gate.refused.items())})
     values.update({f"decode_errors_{k}": n for k, n in sorted(c.decode_errors_by_reason.items())})
     values.update({f"rate_0x{key:X}_hz": rate for key, rate in sorted(per_id.items())})
     level, problems = "OK", []
@@ -49,22 +79,71 @@ def bridge_status(assembler, bus, gate, rig_keys, extra: dict):
         values.update({"link_state": str(status.state), "link_reason": status.reason,
                        "bus_state": status.bus_state, "connects": status.connects,
                        "disconnects": status.disconnects, "send_failures": status.send_failures,
-                       "own_echoes_dropped": status.own_echoes})
+                       "own_echoes_dropped": status.own_echoes,
+                       "malformed_frames": status.malformed_frames})
+        values.update({f"malformed_{k}": n
+                       for k, n in sorted((status.malformed_by_reason or {}).items())})
         if str(status.state) != "up":
             level = "ERROR"
             problems.append(f"CAN link {status.state}: {status.reason}")
+    publishers = extra.get("command_publisher_count", 0)
+    if publishers > 1:
+        level = "ERROR"
+        problems.append(f"{publishers} publishers on pressure_command: "
+                        f"{extra.get('command_publishers', '')}")
     for key, what in (("decode_errors", "decode errors"), ("error_frames", "error frames"),
+                      ("malformed_frames", "malformed frames dropped"),
+                      ("pump_refused_commands", "refused pressure commands"),
                       ("dropped_frames", "dropped frames"), ("watchdog_trips", "watchdog trips"),
                       ("foreign_pump_requests", "PumpRequest frames from another node")):
-        new = values[key] - prev.get(key, 0)
+        new = values.get(key, 0) - prev.get(key, 0)
         if new > 0:
             problems.append(f"{new} new {what}")
             level = "WARN" if level == "OK" else level
-        prev[key] = values[key]
+        prev[key] = values.get(key, 0)
     if extra.get("stale_groups"):
         problems.append(f"stale: {extra['stale_groups']}")
         level = "WARN" if level == "OK" else level
     if values["rig_frame_rate_hz"] == 0.0 and level == "OK":
         level = "WARN"
         problems.append("no rig frames")
+    if len(values) > MAX_VALUES:  # cannot happen with the bounded counters; stay bounded
+        kept = dict(list(values.items())[:MAX_VALUES - 1])
+        kept["values_truncated"] = len(values) - len(kept)
+        values = kept
     return level, "; ".join(problems) or "bridging", values
+
+
+def node_status(bridge, idle_timeout: float):
+    """Return the /diagnostics ``(level, message, values)`` of a ``CanBridgeNode``.
+
+    Unconfigured: its lifecycle state only. Otherwise :func:`bridge_status` with the node's
+    own values (lifecycle state, rig_state published, stale groups, command publishers or
+    the log replay); the message starts with the state unless active. An idle bus (no new
+    rig frame for ``idle_timeout`` [s]) while active logs one warning, and one line when
+    frames come back.
+    """
+    state = bridge._state
+    if bridge._assembler is None:
+        return "OK", state, {"lifecycle_state": state}
+    if bridge._bus is not None and bridge._active:
+        idle = time.monotonic() - bridge._last_new
+        if idle > idle_timeout and not bridge._idle_warned:
+            bridge._idle_warned = True
+            bridge.get_logger().warning(f"no new rig frames for {idle:.1f} s; rig_state paused")
+        elif idle <= idle_timeout and bridge._idle_warned:
+            bridge._idle_warned = False
+            bridge.get_logger().info("rig frames again; rig_state resumed")
+    extra = {"lifecycle_state": state, "rig_state_published": bridge._published,
+             "stale_samples": bridge._stale_reports,
+             "stale_groups": ", ".join(bridge._stale or []),
+             "foreign_pump_requests": bridge._foreign_requests}
+    source, thread = bridge._source, bridge._log_thread
+    if source is None:
+        extra.update(bridge._sources.diagnose())
+    else:
+        extra.update(log_file=str(source.path), log_frames=source.frames_read,
+                     log_done=thread is not None and not thread.is_alive())
+    level, message, values = bridge_status(bridge._assembler, bridge._bus, bridge._gate,
+                                           bridge._pacer.fallback, extra)
+    return level, (message if bridge._active else f"{state}; {message}"), values

@@ -143,7 +143,8 @@ class ReplayJob:
     """One bag of ``clutch replay`` as a picklable job (:func:`clutch_ros.offline.batch.run_jobs`).
 
     Called with ``(bag, out)``: replays ``bag`` with ``params``, writes the estimates to
-    ``out`` (unless None, with ``storage``) and returns ``(summary, result)``: the summary
+    ``out`` (unless None, with ``storage``; ``topic``: the RigState topic, default the bag's
+    only one) and returns ``(summary, result)``: the summary
     gains ``seconds`` (wall time of this bag [s]), ``samples_per_s`` and, when written,
     ``estimates_written`` and ``output``; ``result`` is the whole :class:`ReplayResult` when
     ``keep_result`` (a report needs it), else None (only the summary travels back).
@@ -152,6 +153,7 @@ class ReplayJob:
     params: Any
     storage: str = "mcap"
     keep_result: bool = False
+    topic: str | None = None
 
     def __call__(self, item: tuple[Path, Path | None]) -> tuple[dict[str, Any], Any]:
         """Replay one ``(bag, out)`` pair."""
@@ -159,7 +161,7 @@ class ReplayJob:
         start = time.perf_counter()
         # a report plots every field; otherwise read only what the estimate needs
         fields = None if self.keep_result else REPLAY_FIELDS
-        result = replay_bag(bag, self.params, fields=fields)
+        result = replay_bag(bag, self.params, topic=self.topic, fields=fields)
         summary = result.summary
         seconds = time.perf_counter() - start
         summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
