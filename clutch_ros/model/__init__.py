@@ -14,6 +14,7 @@ documents its quantities. Main entry points:
 - :class:`ClutchEstimator` / :func:`estimate_batch`: the per-sample estimator.
 - :mod:`~clutch_ros.model.metrics` and :mod:`~clutch_ros.model.sequences` (Tables 3-4).
 
+
 Every name is imported lazily from its module on first use (``_EXPORTS``).
 """
 
@@ -39,7 +40,8 @@ _MODULES = {
     ),
     "errors": (
         "DuplicateSample", "InputError", "ModelError", "NonFiniteSample",
-        "OutOfOrderSample", "ParameterError", "SampleRejected", "UnreachableTorqueError",
+        "OutOfOrderSample", "ParameterError", "SampleRejected",
+        "UnreachableTorqueError",
     ),
     "estimator": (
         "ClutchEstimator", "Estimate", "EstimateBatch", "estimate_batch",
@@ -83,7 +85,10 @@ _MODULES = {
         "slip_speed_from_wheels",
     ),
     "spline": (
-        "SplineLaw", "make_spline_law",
+        "SplineLaw",
+    ),
+    "spline_passive": (
+        "make_spline_law",
     ),
     "statespace": (
         "build_state_space", "static_gain", "zoh_discretize",
