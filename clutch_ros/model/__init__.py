@@ -14,7 +14,6 @@ documents its quantities. Main entry points:
 - :class:`ClutchEstimator` / :func:`estimate_batch`: the per-sample estimator.
 - :mod:`~clutch_ros.model.metrics` and :mod:`~clutch_ros.model.sequences` (Tables 3-4).
 
-
 Every name is imported lazily from its module on first use (``_EXPORTS``).
 """
 
