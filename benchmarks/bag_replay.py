@@ -9,13 +9,16 @@
 2. Measures, on that bag, in the same run:
    - bare rosbags: ``Reader.messages()`` + ``Typestore.deserialize_cdr`` per message;
    - :meth:`~clutch_ros.bag.reader.BagReader.messages` (the checked reader);
-   - :func:`~clutch_ros.bag.reader.read_rig_states` (numpy columns);
-   - offline replay, as ``clutch replay`` runs it (:func:`clutch_ros.offline.replay.replay_bag`):
-     ``read_rig_states`` + :func:`clutch_ros.model.estimate_batch` with the ``flexiforce_8``
-     preset, split into its read and estimate parts.
+   - :func:`~clutch_ros.bag.reader.read_rig_states` (numpy columns, every field) and with
+     the replay's fields only (:data:`~clutch_ros.bag.rig_states.REPLAY_FIELDS`);
+   - offline replay, as ``clutch replay`` runs it (:func:`clutch_ros.offline.replay.replay_bag`
+     with the replay's fields): ``read_rig_states`` + :func:`clutch_ros.model.estimate_batch`
+     with the ``flexiforce_8`` preset (``--law`` overrides its spline law), split into its
+     read and estimate parts.
 3. Prints samples/s for each, the ratio to real time and to the bare rosbags read, checks
    the replay targets (>= 100x real time, >= 40 % of the bare read), and deletes the bag
-   (``--keep DIR`` keeps it there). ``--no-replay`` skips the replay.
+   (``--keep DIR`` keeps it there; ``--bag BAG`` measures an existing bag instead).
+   ``--no-replay`` skips the replay.
 """
 
 from __future__ import annotations
@@ -33,9 +36,12 @@ from rosbags.rosbag2 import Reader
 
 from clutch_ros.bag.columns import ColumnDecoder
 from clutch_ros.bag.reader import BagReader
-from clutch_ros.bag.rig_states import read_rig_states
+from clutch_ros.bag.rig_states import REPLAY_FIELDS, read_rig_states
 from clutch_ros.bag.typestore import RIG_STATE, clutch_typestore, rig_state_msg
 from clutch_ros.bag.writer import BagWriter
+from clutch_ros.config.params_file import load_params
+from clutch_ros.config.presets import preset_path
+from clutch_ros.offline.replay import replay_bag
 
 __all__ = ["BenchResult", "generate_bag", "main", "run"]
 
@@ -55,6 +61,7 @@ class BenchResult:
     bare_rosbags_per_s: float
     bag_reader_per_s: float
     read_rig_states_per_s: float
+    read_replay_fields_per_s: float | None = None
     replay_per_s: float | None = None
     replay_read_s: float | None = None
     replay_estimate_s: float | None = None
@@ -161,14 +168,27 @@ def run(
     keep: str | Path | None = None,
     replay: bool = True,
     preset: str = "flexiforce_8",
+    bag: str | Path | None = None,
+    law: str | None = None,
 ) -> BenchResult:
-    """Generate the bag, measure the read paths and the replay, delete it (unless ``keep``)."""
+    """Generate the bag, measure the read paths and the replay, delete it (unless ``keep``).
+
+    With ``bag``, measure that existing bag instead (``seconds`` is then taken from its
+    sample count and ``rate_hz``).
+    """
     with tempfile.TemporaryDirectory(prefix="clutch-bench-") as tmp:
-        path = (Path(keep) if keep else Path(tmp)) / f"bench_{int(seconds)}s_{storage}"
-        t0 = time.perf_counter()
-        n = generate_bag(path, seconds, rate_hz, storage)
-        gen = time.perf_counter() - t0
-        nbytes = sum(f.stat().st_size for f in path.iterdir())
+        gen = 0.0
+        if bag is not None:
+            path = Path(bag)
+            n = len(read_rig_states(path, fields=REPLAY_FIELDS))
+            seconds = n / rate_hz
+            storage = "sqlite3" if any(path.glob("*.db3")) else "mcap"
+        else:
+            path = (Path(keep) if keep else Path(tmp)) / f"bench_{int(seconds)}s_{storage}"
+            t0 = time.perf_counter()
+            n = generate_bag(path, seconds, rate_hz, storage)
+            gen = time.perf_counter() - t0
+        nbytes = sum(f.stat().st_size for f in path.iterdir()) if path.is_dir() else 0
         store = clutch_typestore()
 
         t0 = time.perf_counter()
@@ -190,22 +210,24 @@ def run(
         arrays = read_rig_states(path, store=store)
         fast = _rate(len(arrays), time.perf_counter() - t0)
         del arrays
-        res = BenchResult(n, n / rate_hz, storage, nbytes, gen, bare, checked, fast)
+        t0 = time.perf_counter()
+        arrays = read_rig_states(path, store=store, fields=REPLAY_FIELDS)
+        fields = _rate(len(arrays), time.perf_counter() - t0)
+        del arrays
+        res = BenchResult(n, n / rate_hz, storage, nbytes, gen, bare, checked, fast, fields)
         if replay:
-            from clutch_ros.config.params_file import load_params
-            from clutch_ros.config.presets import preset_path
-            from clutch_ros.offline.replay import replay_bag
-
             params = load_params(preset_path(preset))
+            if law:
+                params = params.with_law(law)
             t0 = time.perf_counter()
-            result = replay_bag(path, params, store=store)
+            result = replay_bag(path, params, store=store, fields=REPLAY_FIELDS)
             total = time.perf_counter() - t0
             if result.summary["accepted"] != n:
                 raise RuntimeError(f"replay accepted {result.summary['accepted']} of {n}")
             res.replay_per_s = _rate(n, total)
             res.replay_read_s = result.summary["read_s"]
             res.replay_estimate_s = result.summary["estimate_s"]
-            res.replay_preset = preset
+            res.replay_preset = preset if not law else f"{preset}, {law}"
             del result
     return res
 
@@ -224,8 +246,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     parser.add_argument("--no-replay", action="store_true", help="measure the reads only")
     parser.add_argument("--preset", default="flexiforce_8", help="estimator preset of the replay")
+    parser.add_argument("--law", help="spline law of the replay (default: the preset's)")
+    parser.add_argument("--bag", help="measure this existing bag (no generation)")
     args = parser.parse_args(argv)
-    res = run(args.seconds, args.rate, args.storage, args.keep, not args.no_replay, args.preset)
+    res = run(args.seconds, args.rate, args.storage, args.keep, not args.no_replay, args.preset,
+              args.bag, args.law)
     if args.json:
         doc = asdict(res)
         doc.update(replay_realtime=res.replay_realtime, replay_vs_bare=res.replay_vs_bare)
@@ -239,6 +264,7 @@ def main(argv: list[str] | None = None) -> int:
         ("bare rosbags read+deserialize", res.bare_rosbags_per_s),
         ("BagReader.messages (checked)", res.bag_reader_per_s),
         ("read_rig_states (numpy)", res.read_rig_states_per_s),
+        ("read_rig_states (replay fields)", res.read_replay_fields_per_s),
     ):
         print(
             f"{label:31s} {rate:12,.0f} samples/s  {rate / args.rate:8,.0f}x real time  "

@@ -80,15 +80,26 @@ class ColumnDecoder:
     Args:
         store: the typestore that defines ``typename``.
         typename: the ROS 2 type, e.g. ``clutch_msgs/msg/RigState``.
+        fields: dotted field paths to return (default: every field). The others are still
+            walked (and bounds-checked) but not copied out: a replay needs 6 of RigState's
+            ~20 columns, and the 2-D ones are the largest.
 
     Raises:
-        ValueError: the type has fields the vectorized path does not support.
+        ValueError: the type has fields the vectorized path does not support, or ``fields``
+            names a field it does not have.
 
     """
 
-    def __init__(self, store: Typestore, typename: str):
+    def __init__(self, store: Typestore, typename: str, fields=None):
         self.typename = typename
         self.steps = _steps(store, typename)
+        if fields is not None:
+            known = {step[1] for step in self.steps if step[0] != "string"}
+            unknown = sorted(set(fields) - known)
+            if unknown:
+                raise ValueError(f"{typename} has no field {', '.join(unknown)}")
+            self.steps = [step if step[0] == "string" or step[1] in fields
+                          else ("skip_" + step[0], *step[1:]) for step in self.steps]
 
     def decode(self, raws: Sequence[bytes | memoryview]) -> dict[str, np.ndarray]:
         """Decode ``raws`` (CDR with 4-byte encapsulation header) into columns.
@@ -172,12 +183,17 @@ class _Walk:
         self.mat: np.ndarray | None = None
         n, length = len(starts), int(lengths[0])
         stride = int(starts[1] - starts[0]) if n > 1 else length
-        if (lengths == length).all() and (n == 1 or (np.diff(starts) == stride).all()):
+        self.uniform = bool((lengths == length).all())  # every message of one length
+        if self.uniform and (n == 1 or (np.diff(starts) == stride).all()):
             self.mat = np.lib.stride_tricks.as_strided(
                 buf[int(starts[0]) :], shape=(n, length), strides=(stride, 1), writeable=False
             )
 
     def _check(self, need: np.ndarray | int, what: str) -> None:
+        if self.const and self.uniform and isinstance(need, int):  # one comparison for all
+            if int(self.rel[0]) + need > int(self.ends[0]):
+                raise CorruptMessageError(0, f"truncated at {what}")
+            return
         over = self.rel + need > self.ends
         if over.any():
             raise CorruptMessageError(int(np.argmax(over)), f"truncated at {what}")
@@ -187,15 +203,27 @@ class _Walk:
         size = dtype.itemsize
         if const and self.mat is not None:
             off = 4 + int(rel[0])
-            raw = np.ascontiguousarray(self.mat[:, off : off + size])
+            # the field's bytes of every message viewed as one strided (n, 1) column: one
+            # copy into an aligned array, no intermediate byte array
+            values = self.mat[:, off : off + size].view(dtype).reshape(-1)
         else:
             raw = self.buf[(self.base + rel)[:, None] + np.arange(size)]
-        values = raw.view(dtype).reshape(-1)
-        return values.astype(bool) if prim == "bool" else values.astype(_out_dtype(prim))
+            values = raw.view(dtype).reshape(-1)
+        if prim == "bool":
+            return values.astype(bool)
+        out = np.empty(len(values), dtype=_out_dtype(prim))
+        out[:] = values
+        return out
 
     def _align(self, size: int, where: np.ndarray | None = None) -> None:
         """Align ``rel`` to ``size`` (only where ``where`` is true, if given)."""
         if size <= 1:
+            return
+        if where is None and self.const:  # align one offset; shift all only if it moves
+            rel = int(self.rel[0])
+            shift = ((rel + size - 1) & -size) - rel
+            if shift:
+                self.rel = self.rel + shift
             return
         aligned = (self.rel + size - 1) & -size
         if where is None:
@@ -211,7 +239,30 @@ class _Walk:
         cols: dict[str, np.ndarray] = {}
         for step in steps:
             kind, name = step[0], step[1]
-            if kind == "prim":
+            if kind == "skip_prim":  # walked, not copied out
+                size = np.dtype(_PRIM[step[2]]).itemsize
+                self._align(size)
+                self._check(size, name)
+                self.offsets[name] = self.rel
+                self.rel = self.rel + size
+            elif kind == "skip_array":
+                size = np.dtype(_PRIM[step[2]]).itemsize
+                self._align(size)
+                self._check(size * step[3], name)
+                self.offsets[name] = self.rel
+                self.rel = self.rel + size * step[3]
+            elif kind == "skip_seq":
+                size = np.dtype(_PRIM[step[2]]).itemsize
+                self._align(4)
+                self._check(4, name)
+                count = self._gather(self.rel, "uint32", self.const).astype(np.int64)
+                self.rel = self.rel + 4
+                self._align(size, where=count > 0)
+                self._check(count * size, name)
+                self.offsets[name] = self.rel
+                self.rel = self.rel + count * size
+                self._refresh_const()
+            elif kind == "prim":
                 size = np.dtype(_PRIM[step[2]]).itemsize
                 self._align(size)
                 self._check(size, name)

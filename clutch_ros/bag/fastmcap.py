@@ -14,12 +14,13 @@ log time (stable) to obtain rosbags' order.
 
 from __future__ import annotations
 
+import mmap
 import struct
 import sys
 import zlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import BinaryIO, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -67,23 +68,15 @@ _DECOMPRESS: dict[str, Callable[[bytes], bytes]] = {
 }
 
 
-def _string(buf: bytes, pos: int) -> tuple[str, int]:
+def _string(buf, pos: int) -> tuple[str, int]:
     (size,) = struct.unpack_from("<I", buf, pos)
-    return buf[pos + 4 : pos + 4 + size].decode(), pos + 4 + size
+    return bytes(buf[pos + 4 : pos + 4 + size]).decode(), pos + 4 + size
 
 
 def _channel(body: bytes) -> tuple[int, str]:
     (cid,) = struct.unpack_from("<H", body, 0)
     topic, _ = _string(body, 4)
     return cid, topic
-
-
-def _read(fh: BinaryIO, size: int, what: str) -> bytes:
-    pos = fh.tell()
-    data = fh.read(size)
-    if len(data) != size:
-        raise FastMcapError(f"truncated {what} at offset {pos}")
-    return data
 
 
 class _Scan:
@@ -98,13 +91,26 @@ class _Scan:
         if topic in self.topics:
             self.wanted.add(cid)
 
-    def chunk(self, body: bytes) -> MessageBlock | None:
+    def chunk(self, view: memoryview, whole: np.ndarray, start: int, end: int
+              ) -> MessageBlock | None:
+        """Scan the chunk record whose body is ``view[start:end]`` (``whole``: the file).
+
+        An uncompressed chunk is scanned in place in the memory-mapped file (no copy): its
+        messages are positions in ``whole``, which has the spare bytes the decoder needs
+        after every chunk (the summary and footer follow the data section).
+        """
+        body = view[start:end]
         _, _, size, crc = _CHUNK.unpack_from(body, 0)
         compression, pos = _string(body, 28)
         (length,) = struct.unpack_from("<Q", body, pos)
         pos += 8
+        raw = body[pos : pos + length]
+        if compression == "" and len(raw) == size and start + pos + size + 32 <= len(whole):
+            if crc and zlib.crc32(raw) != crc:
+                raise FastMcapError("chunk size or CRC mismatch")
+            return self.records(raw, whole, start + pos)
         try:
-            data = _DECOMPRESS[compression](body[pos : pos + length])
+            data = _DECOMPRESS[compression](bytes(raw))
         except KeyError:
             raise FastMcapError(f"unsupported chunk compression {compression!r}") from None
         except Exception as err:  # noqa: BLE001 - decompressor errors on corrupt data
@@ -113,14 +119,24 @@ class _Scan:
             raise FastMcapError("chunk size or CRC mismatch")
         return self.records(data)
 
-    def records(self, data: bytes) -> MessageBlock | None:
+    def records(self, data, buf: np.ndarray | None = None, base: int = 0
+                ) -> MessageBlock | None:
         """Locate the wanted messages among the records of one chunk (or a lone message).
 
-        The Python loop only finds record boundaries; record fields are then read for all
-        message records at once with numpy.
+        ``data`` holds the records (bytes or a memoryview); ``buf`` is a uint8 array that
+        holds them at offset ``base`` with >= 32 spare bytes after them (default: a padded
+        copy of ``data``). The positions returned are positions in ``buf``.
+
+        Record boundaries are found by walking the records; a run of message records of one
+        size (a fixed-layout message type, the usual case) is verified and taken in one numpy
+        step (:func:`_same_size_run`), so the Python loop runs once per run, not per message.
+        Record fields are then read for all message records at once with numpy.
         """
-        found: list[int] = []  # positions of message records
+        runs: list[np.ndarray] = []  # positions of message records, run by run
+        found: list[int] = []  # positions of single message records
         append, unpack = found.append, _LEN.unpack_from
+        if buf is None:
+            buf, base = np.frombuffer(bytes(data) + bytes(32), dtype=np.uint8), 0
         pos, end = 0, len(data)
         while pos < end:
             if pos + 9 > end:
@@ -128,16 +144,25 @@ class _Scan:
             op = data[pos]
             (size,) = unpack(data, pos + 1)
             if op == _OP_MESSAGE:
-                append(pos)
+                run = _same_size_run(buf, base + pos, 9 + size, base + end)
+                if run is not None:
+                    if found:
+                        runs.append(np.array(found, dtype=np.int64))
+                        found.clear()
+                    runs.append(run)
+                    pos += len(run) * (9 + size)
+                    continue
+                append(base + pos)
             elif op == _OP_CHANNEL:
-                self.channel(data[pos + 9 : pos + 9 + size])
+                self.channel(bytes(data[pos + 9 : pos + 9 + size]))
             pos += 9 + size
         if pos != end:
             raise FastMcapError("record overruns its chunk")
-        if not found or not self.wanted:
+        if found:
+            runs.append(np.array(found, dtype=np.int64))
+        if not runs or not self.wanted:
             return None
-        buf = np.frombuffer(data + bytes(32), dtype=np.uint8)
-        at = np.array(found, dtype=np.int64)
+        at = runs[0] if len(runs) == 1 else np.concatenate(runs)
         size = _field(buf, at + 1, "<u8").astype(np.int64)
         if (size < 22).any():
             raise FastMcapError(f"message record of {int(size.min())} bytes in chunk")
@@ -150,6 +175,32 @@ class _Scan:
         return MessageBlock(buf, at + 31, size - 22, times, chans)
 
 
+#: Shortest run of equal-size message records worth checking with numpy.
+_MIN_RUN = 16
+
+
+def _same_size_run(buf: np.ndarray, pos: int, stride: int, end: int) -> np.ndarray | None:
+    """Positions of the run of message records of length ``stride`` starting at ``pos``.
+
+    The record at ``pos`` is a message record of ``stride`` bytes (header included). The
+    records that would follow at the same stride are checked at once (opcode and length
+    field); the run ends before the first one that differs, or at ``end``. Every position
+    returned is a record boundary the record-by-record walk would also reach. None when the
+    run would be shorter than :data:`_MIN_RUN` (the walk is as fast then).
+    """
+    count = (end - pos) // stride
+    if count < _MIN_RUN:
+        return None
+    at = pos + stride * np.arange(count, dtype=np.int64)
+    same = (buf[at] == _OP_MESSAGE) & (_field(buf, at + 1, "<u8") == stride - 9)
+    if not same.all():
+        count = int(np.argmin(same))  # same[0] is true: count >= 1
+        if count < _MIN_RUN:
+            return None
+        at = at[:count]
+    return at
+
+
 def _field(buf: np.ndarray, pos: np.ndarray, dtype: str) -> np.ndarray:
     """Read one little-endian field of type ``dtype`` at each position of ``pos`` in ``buf``."""
     width = np.dtype(dtype).itemsize
@@ -159,6 +210,9 @@ def _field(buf: np.ndarray, pos: np.ndarray, dtype: str) -> np.ndarray:
 def scan_chunks(path: Path, topics: set[str]) -> Iterator[MessageBlock]:
     """Yield, per chunk (or top-level message), the messages published on ``topics``.
 
+    The file is memory-mapped: uncompressed chunks are scanned and decoded in place. The
+    mapping is released when the last block referring to it is gone.
+
     Raises:
         FastMcapError: not MCAP, truncated, corrupt chunk, unsupported compression.
 
@@ -167,22 +221,31 @@ def scan_chunks(path: Path, topics: set[str]) -> Iterator[MessageBlock]:
     with path.open("rb") as fh:
         if fh.read(8) != MAGIC:
             raise FastMcapError("not an MCAP file (bad magic)")
-        while True:
-            head = fh.read(9)
-            if not head:
-                raise FastMcapError("no data end or footer record (truncated file)")
-            if len(head) != 9:
-                raise FastMcapError(f"truncated record header at offset {fh.tell() - len(head)}")
-            op, size = _REC.unpack(head)
-            if op in {_OP_DATA_END, _OP_FOOTER}:
-                return
-            if op not in {_OP_CHUNK, _OP_CHANNEL, _OP_MESSAGE}:
-                fh.seek(size, 1)
-                continue
-            body = _read(fh, size, f"record {op:#x}")
-            if op == _OP_CHANNEL:
-                scan.channel(body)
-                continue
-            block = scan.chunk(body) if op == _OP_CHUNK else scan.records(head + body)
-            if block is not None:
-                yield block
+        mapped = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+    view = memoryview(mapped)
+    whole = np.frombuffer(mapped, dtype=np.uint8)
+    total = len(whole)
+    pos = 8
+    while True:
+        if pos >= total:
+            raise FastMcapError("no data end or footer record (truncated file)")
+        if pos + 9 > total:
+            raise FastMcapError(f"truncated record header at offset {pos}")
+        op, size = _REC.unpack_from(view, pos)
+        start, end = pos + 9, pos + 9 + size
+        if op in {_OP_DATA_END, _OP_FOOTER}:
+            return
+        if end > total:
+            raise FastMcapError(f"truncated record {op:#x} at offset {start}")
+        pos = end
+        if op == _OP_CHANNEL:
+            scan.channel(bytes(view[start:end]))
+            continue
+        if op == _OP_CHUNK:
+            block = scan.chunk(view, whole, start, end)
+        elif op == _OP_MESSAGE:
+            block = scan.records(view[start - 9 : end])
+        else:
+            continue
+        if block is not None:
+            yield block

@@ -17,15 +17,19 @@ from pathlib import Path
 
 import numpy as np
 
-from clutch_ros.bag.columns import ColumnDecoder, CorruptMessageError, columns_slow
+from clutch_ros.bag.columns import ColumnDecoder, CorruptMessageError, _steps, columns_slow
 from clutch_ros.bag.diagnose import blame_file, load_metadata, storage_files, storage_issues
 from clutch_ros.bag.errors import BagCorruptError, BagCountMismatchError, BagError
 from clutch_ros.bag.fastmcap import scan_chunks
 from clutch_ros.bag.reader import BagReader
 from clutch_ros.bag.typestore import RIG_STATE, Typestore, topic_name
 
-__all__ = ["ColumnSink", "RigStateArrays", "mcap_files", "read_fast", "read_rig_states",
-           "read_via_rosbags"]
+__all__ = ["REPLAY_FIELDS", "ColumnSink", "RigStateArrays", "mcap_files", "read_fast",
+           "read_rig_states", "read_via_rosbags"]
+
+#: The RigState fields the estimator needs (``clutch replay`` without a report).
+REPLAY_FIELDS = ("header.stamp.sec", "header.stamp.nanosec", "actuating_pressure",
+                 "lamella_temperature", "slip_speed", "measured_torque", "has_measured_torque")
 
 
 class RigStateArrays:
@@ -86,11 +90,14 @@ class ColumnSink:
 
     @staticmethod
     def _alloc(like: np.ndarray, rows: int, width: int | None = None) -> np.ndarray:
+        # not filled: every cell up to ``rows`` is written by add() (first touch of a large
+        # column costs as much as the copy itself)
         shape = (rows,) if like.ndim == 1 else (rows, like.shape[1] if width is None else width)
-        out = np.empty(shape, dtype=like.dtype)
-        if like.ndim == 2:
-            out.fill(np.nan if like.dtype.kind == "f" else 0)
-        return out
+        return np.empty(shape, dtype=like.dtype)
+
+    @staticmethod
+    def _pad(like: np.ndarray) -> float:
+        return np.nan if like.dtype.kind == "f" else 0
 
     def add(self, part: dict[str, np.ndarray]) -> None:
         """Append one batch of columns (all of the same length)."""
@@ -106,11 +113,13 @@ class ColumnSink:
                 grown = self._alloc(arr, max(end, 2 * len(out)), width)
                 if out.ndim == 2:
                     grown[: self.rows, : out.shape[1]] = out[: self.rows]
+                    grown[: self.rows, out.shape[1] :] = self._pad(out)
                 else:
                     grown[: self.rows] = out[: self.rows]
                 cols[key] = out = grown
             if arr.ndim == 2:
                 out[self.rows : end, : arr.shape[1]] = arr
+                out[self.rows : end, arr.shape[1] :] = self._pad(out)
             else:
                 out[self.rows : end] = arr
         self.rows = end
@@ -224,6 +233,7 @@ def read_rig_states(
     store: Typestore | None = None,
     batch: int = 65536,
     fast: bool = True,
+    fields=None,
 ) -> RigStateArrays:
     """Read every ``RigState`` of a bag topic into numpy arrays, fast (no message objects).
 
@@ -238,6 +248,8 @@ def read_rig_states(
         store: typestore.
         batch: messages decoded per numpy batch (rosbags path).
         fast: allow the direct MCAP scan.
+        fields: dotted field paths to decode (default: every field); the header stamp is
+            always read. A replay reads only what the model needs (:data:`REPLAY_FIELDS`).
 
     Raises:
         BagError: no (or more than one) RigState topic; plus everything :class:`BagReader`
@@ -259,8 +271,13 @@ def read_rig_states(
             if conn.msgtype != RIG_STATE:
                 raise BagError(bag.path, f"topic {topic} has type {conn.msgtype}, not RigState")
             bag._check_type(conn)
+        if fields is not None:
+            fields = set(fields) | {"header.stamp.sec", "header.stamp.nanosec"}
+            unknown = fields - set(_field_paths(bag.store))
+            if unknown:
+                raise BagError(bag.path, f"RigState has no field {', '.join(sorted(unknown))}")
         try:
-            decoder: ColumnDecoder | None = ColumnDecoder(bag.store, RIG_STATE)
+            decoder: ColumnDecoder | None = ColumnDecoder(bag.store, RIG_STATE, fields)
         except ValueError:
             decoder = None
         files = mcap_files(bag) if fast and decoder is not None else None
@@ -270,4 +287,12 @@ def read_rig_states(
             columns, stamps = read_fast(bag, topic, decoder, files)
         else:
             columns, stamps = read_via_rosbags(bag, topic, decoder, batch)
+            if fields is not None:  # the per-message fallback decodes every field
+                columns = {k: v for k, v in columns.items()
+                           if k in fields or k.removesuffix(".len") in fields}
         return RigStateArrays(bag.path, topic, columns, stamps)
+
+
+def _field_paths(store: Typestore) -> list[str]:
+    """Dotted paths of RigState's primitive, array and sequence fields."""
+    return [step[1] for step in _steps(store, RIG_STATE) if step[0] != "string"]

@@ -17,7 +17,7 @@ import sys
 
 from clutch_ros.errors import ClutchError
 
-__all__ = ["dispatch", "emit_json", "standalone"]
+__all__ = ["add_batch_options", "check_batch_options", "dispatch", "emit_json", "standalone"]
 
 
 def emit_json(obj) -> None:
@@ -60,3 +60,20 @@ def standalone(module, command: str, argv=None) -> int:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     module.add_parser(sub)
     return dispatch(parser.parse_args([command, *(sys.argv[1:] if argv is None else argv)]))
+
+
+def add_batch_options(p, what: str) -> None:
+    """Register ``--jobs N`` and ``--cluster ADDRESS`` (work on ``what`` in parallel)."""
+    p.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help=f"work on N {what} at once in local processes (default 1; results "
+                        "are identical to a serial run and in input order)")
+    p.add_argument("--cluster", metavar="ADDRESS",
+                   help=f"run the {what} on the workers of a running Dask distributed "
+                        "scheduler (e.g. tcp://10.0.0.5:8786); every worker must see the "
+                        "files under the same paths")
+
+
+def check_batch_options(args) -> None:
+    """Raise ClutchError for a bad ``--jobs`` value."""
+    if args.jobs < 1:
+        raise ClutchError(f"--jobs must be >= 1, got {args.jobs}")

@@ -35,7 +35,7 @@ import sys
 from pathlib import Path
 
 from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
-from clutch_ros.cli.dispatch import emit_json, standalone
+from clutch_ros.cli.dispatch import add_batch_options, check_batch_options, emit_json, standalone
 from clutch_ros.config.params_file import load_params, write_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
@@ -87,13 +87,9 @@ def add_parser(sub) -> None:
     p.add_argument("--max-seconds", type=float, default=45.0, metavar="S",
                    help="stop the solver at its best point after about S seconds (default "
                         "45; 0: no limit); the result is then flagged as not converged")
+    add_batch_options(p, "bags' reads")
     p.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     p.set_defaults(func=run)
-
-
-
-
-
 
 
 def run(args) -> int:
@@ -108,9 +104,11 @@ def run(args) -> int:
     out = Path(args.output)
     if out.is_dir():
         raise ClutchError(f"{out}: is a directory, expected a parameter file name")
+    check_batch_options(args)
     fixed = calibration_from_args(args)
     runs, info = load_runs(args.bags, base.pack.piston_area, pdiff=not args.no_pdiff,
-                           calibration=args.calibration, fixed=fixed)
+                           calibration=args.calibration, fixed=fixed, jobs=args.jobs,
+                           cluster=args.cluster)
     kwargs = {}
     if args.pdiff_weight is not None:
         kwargs["pdiff_weight"] = args.pdiff_weight
@@ -146,7 +144,6 @@ def run(args) -> int:
     write_params(result.params, out, header=header)
     cal = info["calibration"]
     if args.json:
-
         doc = result.to_dict()
         doc.update(output=str(out), bags=[str(b) for b in args.bags],
                    pdiff=cal is not None and not args.no_pdiff,

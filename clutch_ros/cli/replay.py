@@ -26,13 +26,14 @@ from pathlib import Path
 
 from clutch_ros.bag.recover import recover_bag
 from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
-from clutch_ros.cli.dispatch import emit_json
+from clutch_ros.cli.dispatch import add_batch_options, check_batch_options, emit_json
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
 from clutch_ros.model.params import SPLINE_LAWS
+from clutch_ros.offline.batch import run_jobs
+from clutch_ros.offline.replay import ReplayJob
 from clutch_ros.offline.replay import replay_bag as replay
-from clutch_ros.offline.replay import write_estimates
 from clutch_ros.offline.replay_report import ReplayReport
 
 __all__ = ["add_parser", "run", "replay_bag"]
@@ -57,6 +58,7 @@ def add_parser(sub) -> None:
                         "(accuracy, P_diff vs spline force, residual cross-correlation), and the "
                         "RMSE per sequence")
     add_calibration_options(p, "the report's measured P_diff (with --report)")
+    add_batch_options(p, "bags")
     p.add_argument("--topic", help="RigState topic to replay (default: the bag's only "
                    "RigState topic)")
     p.add_argument("--recover", action="store_true",
@@ -90,24 +92,37 @@ def run(args) -> int:
         report = ReplayReport(Path(args.report), params, params.spline.law,
                               calibration=args.calibration,
                               fixed_calibration=calibration_from_args(args))
+    check_batch_options(args)
+    job = ReplayJob(params, storage=args.storage, keep_result=report is not None)
+    results = []
+    if args.recover and args.cluster:
+        raise ClutchError("--recover writes the recovered bags to a local scratch directory; "
+                          "it cannot be combined with --cluster")
+    job = ReplayJob(params, storage=args.storage, keep_result=report is not None,
+                    topic=args.topic)
     results = []
     scratch = tempfile.TemporaryDirectory(prefix="clutch-recover-") if args.recover else None
+    items, recoveries = [], []
     for index, (bag, out) in enumerate(zip(bags, outs)):
-        start = time.perf_counter()
-        recovery = None
+        recovery, spent = None, 0.0
         if scratch is not None:
+            start = time.perf_counter()
             recovery = recover_bag(bag, Path(scratch.name) / f"{index}")
+            spent = time.perf_counter() - start
             _say_recovery(recovery)
-        result = replay(Path(recovery["recovered_bag"]) if recovery else bag, params,
-                        topic=args.topic)
-        summary = result.summary
+        items.append((Path(recovery["recovered_bag"]) if recovery else bag, out))
+        recoveries.append((bag, recovery, spent))
+    # serially, each bag's result is dropped before the next bag is read (bags may be
+    # large); in parallel, the workers return summaries only (whole results with --report)
+    if args.jobs == 1 and not args.cluster:
+        done = (job(item) for item in items)
+    else:
+        done = iter(run_jobs(job, items, jobs=args.jobs, cluster=args.cluster))
+    for (bag, recovery, spent), (summary, result) in zip(recoveries, done):
         if recovery is not None:
-            summary.update(bag=str(bag), recovery=recovery)
-        seconds = time.perf_counter() - start
-        summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
-        if out is not None:
-            summary["estimates_written"] = write_estimates(out, result, storage=args.storage)
-            summary["output"] = str(out)
+            seconds = summary["seconds"] + spent
+            summary.update(bag=str(bag), recovery=recovery, seconds=seconds,
+                           samples_per_s=summary["samples"] / max(seconds, 1e-9))
         if report is not None:
             summary["plots"] = report.add(result)
         results.append(summary)
@@ -117,7 +132,6 @@ def run(args) -> int:
     if report is not None:
         report.finish(results)
     if args.json:
-
         emit_json(results)
     else:
         for r in results:

@@ -13,118 +13,87 @@ documents its quantities. Main entry points:
 - :func:`pressure_for_torque` / :func:`solve_pressure`: the inverse.
 - :class:`ClutchEstimator` / :func:`estimate_batch`: the per-sample estimator.
 - :mod:`~clutch_ros.model.metrics` and :mod:`~clutch_ros.model.sequences` (Tables 3-4).
+
+Every name is imported lazily from its module on first use (``_EXPORTS``).
 """
 
-from clutch_ros.model.calibration import (
-    CalibrationComparison,
-    CalibrationError,
-    LamellaPressures,
-    SensorCalibration,
-    calibrate,
-    calibrate_same_force,
-    calibrate_same_sensor,
-    compare_methods,
-    quasi_static_mask,
-)
-from clutch_ros.model.control import (
-    ControlCommand,
-    ControllerOutput,
-    ControllerSettings,
-    TorqueController,
-    command_pressure,
-)
-from clutch_ros.model.errors import (
-    DuplicateSample,
-    InputError,
-    ModelError,
-    NonFiniteSample,
-    OutOfOrderSample,
-    ParameterError,
-    SampleRejected,
-    UnreachableTorqueError,
-)
-from clutch_ros.model.estimator import ClutchEstimator, Estimate, EstimateBatch, estimate_batch
-from clutch_ros.model.fit_data import (
-    SAMPLE_BUDGET,
-    FitOptions,
-    FitRun,
-    IdentificationError,
-    NoExcitationError,
-    NoMeasuredTorqueError,
-    TooShortError,
-    UnidentifiableParameterError,
-)
-from clutch_ros.model.friction import (
-    friction_coefficient,
-    reference_torque,
-    slip_sign,
-    torque_capacity,
-)
-from clutch_ros.model.identification import (
-    FREE_PARAMETERS,
-    FitResult,
-    RunEvaluation,
-    evaluate,
-    fit,
-    initial_params,
-)
-from clutch_ros.model.inverse import (
-    PressureSolution,
-    pressure_for_torque,
-    pressure_for_torque_array,
-    solve_pressure,
-)
-from clutch_ros.model.metrics import (
-    CrossCorrelation,
-    accuracy_summary,
-    cross_correlation,
-    hysteresis_width,
-    longest_run,
-    overshoot,
-    request_accuracy,
-    rmse,
-    torque_accuracy,
-    undershoot,
-    within_band,
-)
-from clutch_ros.model.pack import PackModel, PackSample, PackState
-from clutch_ros.model.params import (
-    NAMESPACES,
-    PARAMETER_SPECS,
-    SPLINE_LAWS,
-    TABLE7,
-    ClutchParams,
-    FrictionParams,
-    PackParams,
-    ParamSpec,
-    SlipParams,
-    SplineParams,
-    Table7Entry,
-)
-from clutch_ros.model.sequences import (
-    SEQUENCE_NAMES,
-    Sequence,
-    concatenate,
-    incremented_step_sequence,
-    make_sequence,
-    pbd_sequence,
-    ramp_sequence,
-    rpm_to_rad_s,
-    step_sequence,
-    table3,
-    table4,
-)
+import importlib
+
+# Imported eagerly: the function ``simulate`` shares its name with its module, and a lazy
+# name would be shadowed by the submodule as soon as anything imports
+# ``clutch_ros.model.simulate`` (the pack, the estimator; replay needs them anyway).
 from clutch_ros.model.simulate import SimulationResult, simulate
-from clutch_ros.model.slip import (
-    SlipFilter,
-    base_speed,
-    lowpass_series,
-    slip_speed_from_shafts,
-    slip_speed_from_wheels,
-)
-from clutch_ros.model.spline import SplineLaw
-from clutch_ros.model.spline_passive import make_spline_law
-from clutch_ros.model.statespace import build_state_space, static_gain, zoh_discretize
+
+#: Defining module -> its public names. The package imports nothing until a name is used
+#: (PEP 562 ``__getattr__``), so ``clutch replay`` does not pay for scipy.optimize,
+#: scipy.stats and scipy.ndimage (identification, inverse, control), ~1-3 s of start-up.
+_MODULES = {
+    "calibration": (
+        "CalibrationComparison", "CalibrationError", "LamellaPressures",
+        "SensorCalibration", "calibrate", "calibrate_same_force",
+        "calibrate_same_sensor", "compare_methods", "quasi_static_mask",
+    ),
+    "control": (
+        "ControlCommand", "ControllerOutput", "ControllerSettings", "TorqueController",
+        "command_pressure",
+    ),
+    "errors": (
+        "DuplicateSample", "InputError", "ModelError", "NonFiniteSample",
+        "OutOfOrderSample", "ParameterError", "SampleRejected",
+        "UnreachableTorqueError",
+    ),
+    "estimator": (
+        "ClutchEstimator", "Estimate", "EstimateBatch", "estimate_batch",
+    ),
+    "fit_data": (
+        "SAMPLE_BUDGET", "FitOptions", "FitRun", "IdentificationError",
+        "NoExcitationError", "NoMeasuredTorqueError", "TooShortError",
+        "UnidentifiableParameterError",
+    ),
+    "friction": (
+        "friction_coefficient", "reference_torque", "slip_sign", "torque_capacity",
+    ),
+    "identification": (
+        "FREE_PARAMETERS", "FitResult", "RunEvaluation", "evaluate", "fit",
+        "initial_params",
+    ),
+    "inverse": (
+        "PressureSolution", "pressure_for_torque", "pressure_for_torque_array",
+        "solve_pressure",
+    ),
+    "metrics": (
+        "CrossCorrelation", "accuracy_summary", "cross_correlation", "hysteresis_width",
+        "longest_run", "overshoot", "request_accuracy", "rmse", "torque_accuracy",
+        "undershoot", "within_band",
+    ),
+    "pack": (
+        "PackModel", "PackSample", "PackState",
+    ),
+    "params": (
+        "NAMESPACES", "PARAMETER_SPECS", "SPLINE_LAWS", "TABLE7", "ClutchParams",
+        "FrictionParams", "PackParams", "ParamSpec", "SlipParams", "SplineParams",
+        "Table7Entry",
+    ),
+    "sequences": (
+        "SEQUENCE_NAMES", "Sequence", "concatenate", "incremented_step_sequence",
+        "make_sequence", "pbd_sequence", "ramp_sequence", "rpm_to_rad_s",
+        "step_sequence", "table3", "table4",
+    ),
+    "slip": (
+        "SlipFilter", "base_speed", "lowpass_series", "slip_speed_from_shafts",
+        "slip_speed_from_wheels",
+    ),
+    "spline": (
+        "SplineLaw",
+    ),
+    "spline_passive": (
+        "make_spline_law",
+    ),
+    "statespace": (
+        "build_state_space", "static_gain", "zoh_discretize",
+    ),
+}
+_EXPORTS = {name: module for module, names in _MODULES.items() for name in names}
 
 __all__ = [
     # errors
@@ -162,3 +131,18 @@ __all__ = [
     "ControlCommand", "ControllerOutput", "ControllerSettings", "TorqueController",
     "command_pressure",
 ]
+
+
+def __getattr__(name: str):
+    """Import the module defining ``name`` on first use (module docstring)."""
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'clutch_ros.model' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"clutch_ros.model.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    """Return the module attributes plus the lazily imported public names."""
+    return sorted(set(globals()) | set(_EXPORTS))

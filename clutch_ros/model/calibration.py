@@ -35,7 +35,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 from clutch_ros.model.errors import ModelError
 
@@ -335,6 +334,9 @@ def quasi_static_mask(t, pressure, window: float = 0.5, tolerance: float = 0.01,
     size = 2 * half + 1  # trailing window of `size` samples ends at i: centred at i - half
     hi = np.empty(n)
     lo = np.empty(n)
+    # scipy.ndimage takes ~0.8 s to import; only calibration needs it (not replay's start-up)
+    from scipy.ndimage import maximum_filter1d, minimum_filter1d
+
     hi[half:] = maximum_filter1d(p, size, mode="nearest")[:n - half]
     lo[half:] = minimum_filter1d(p, size, mode="nearest")[:n - half]
     hi[:half], lo[:half] = np.inf, -np.inf

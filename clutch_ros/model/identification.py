@@ -68,7 +68,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from clutch_ros.model.estimator import estimate_batch
 from clutch_ros.model.fit_data import (
@@ -381,6 +380,10 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
         params0 = _scale_mu(params0, segments)
     problem = _Problem(params0, keys, segments, opts)
     z0 = np.clip(np.zeros(len(keys)), problem.lower, problem.upper)
+    # scipy.optimize takes ~0.7 s to import; loaded by a fit, not by everything that imports
+    # this module (replay reports use RunEvaluation)
+    from scipy.optimize import least_squares
+
     res = least_squares(problem, z0, bounds=(problem.lower, problem.upper), method="trf",
                         x_scale=1.0, diff_step=opts.diff_step, ftol=opts.ftol, xtol=opts.xtol,
                         gtol=opts.gtol, max_nfev=opts.max_nfev,

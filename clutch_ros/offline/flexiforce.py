@@ -24,27 +24,31 @@ from clutch_ros.model.calibration import (
     compare_methods,
     quasi_static_mask,
 )
-from clutch_ros.model.identification import FitRun
+from clutch_ros.model.fit_data import FitRun
+from clutch_ros.offline.batch import run_jobs
 
 __all__ = ["load_runs", "flexiforce_pressures", "flexiforce_voltages", "check_sensor_count",
            "read_calibration"]
 
 
 def load_runs(bags, piston_area: float, *, pdiff: bool = True,
-              calibration: str = "same_force", fixed=None):
+              calibration: str = "same_force", fixed=None, jobs: int = 1,
+              cluster: str | None = None):
     """Read the bags into :class:`~clutch_ros.model.identification.FitRun` objects.
+
+    The bags are read by ``jobs`` local processes or on the Dask scheduler ``cluster``
+    (:func:`~clutch_ros.offline.batch.run_jobs`; same arrays as a serial read).
 
     Returns ``(runs, info)``; ``info`` holds the calibration (``calibration``: the fitted or
     given (``fixed``) :class:`~clutch_ros.model.calibration.SensorCalibration` or None,
     ``comparison``: both methods compared when fitted, ``calibration_error``: why there is
     none).
     """
-    arrays = []
-    for bag in bags:
-        rig = read_rig_states(Path(bag))
+    paths = [Path(bag) for bag in bags]
+    arrays = list(zip(paths, run_jobs(read_rig_states, paths, jobs=jobs, cluster=cluster)))
+    for bag, rig in arrays:
         if len(rig) == 0:
             raise ClutchError(f"{bag}: no RigState messages")
-        arrays.append((Path(bag), rig))
     pressures, info = flexiforce_pressures([rig for _, rig in arrays], piston_area,
                                            calibration=calibration, enabled=pdiff,
                                            fixed=fixed)

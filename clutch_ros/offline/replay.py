@@ -25,13 +25,14 @@ import numpy as np
 from clutch_ros.bag.arrays import TemplateSerializer, write_columns
 from clutch_ros.bag.errors import BagError
 from clutch_ros.bag.reader import BagReader
-from clutch_ros.bag.rig_states import RigStateArrays, read_rig_states
+from clutch_ros.bag.rig_states import REPLAY_FIELDS, RigStateArrays, read_rig_states
 from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, Typestore
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.model import accuracy_summary, estimate_batch, within_band
 
 __all__ = [
     "ESTIMATE_FIELDS",
+    "ReplayJob",
     "ReplayResult",
     "estimate_layout",
     "published_rows",
@@ -82,9 +83,18 @@ def published_rows(batch: Any) -> np.ndarray:
 
 
 def replay_bag(
-    bag: str | Path, params: Any, *, topic: str | None = None, store: Typestore | None = None
+    bag: str | Path,
+    params: Any,
+    *,
+    topic: str | None = None,
+    store: Typestore | None = None,
+    fields: Any = None,
 ) -> ReplayResult:
     """Run the estimator with ``params`` over the RigState stream of ``bag``.
+
+    ``fields``: the RigState fields read into ``result.rig`` (default every field;
+    :data:`~clutch_ros.bag.rig_states.REPLAY_FIELDS` is what the estimate needs, a smaller
+    and faster read).
 
     Raises:
         BagError: no RigState topic, or no messages; plus everything
@@ -93,7 +103,7 @@ def replay_bag(
     """
     path = Path(bag)
     start = time.perf_counter()
-    rig = read_rig_states(path, topic, store=store)
+    rig = read_rig_states(path, topic, store=store, fields=fields)
     read_s = time.perf_counter() - start
     if len(rig) == 0:
         raise BagError(path, f"no RigState messages on {rig.topic}")
@@ -126,6 +136,39 @@ def replay_bag(
         estimate_s=estimate_s,
     )
     return ReplayResult(path, rig, batch, summary)
+
+
+@dataclass(frozen=True)
+class ReplayJob:
+    """One bag of ``clutch replay`` as a picklable job (:func:`clutch_ros.offline.batch.run_jobs`).
+
+    Called with ``(bag, out)``: replays ``bag`` with ``params``, writes the estimates to
+    ``out`` (unless None, with ``storage``; ``topic``: the RigState topic, default the bag's
+    only one) and returns ``(summary, result)``: the summary
+    gains ``seconds`` (wall time of this bag [s]), ``samples_per_s`` and, when written,
+    ``estimates_written`` and ``output``; ``result`` is the whole :class:`ReplayResult` when
+    ``keep_result`` (a report needs it), else None (only the summary travels back).
+    """
+
+    params: Any
+    storage: str = "mcap"
+    keep_result: bool = False
+    topic: str | None = None
+
+    def __call__(self, item: tuple[Path, Path | None]) -> tuple[dict[str, Any], Any]:
+        """Replay one ``(bag, out)`` pair."""
+        bag, out = item
+        start = time.perf_counter()
+        # a report plots every field; otherwise read only what the estimate needs
+        fields = None if self.keep_result else REPLAY_FIELDS
+        result = replay_bag(bag, self.params, topic=self.topic, fields=fields)
+        summary = result.summary
+        seconds = time.perf_counter() - start
+        summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
+        if out is not None:
+            summary["estimates_written"] = write_estimates(out, result, storage=self.storage)
+            summary["output"] = str(out)
+        return summary, (result if self.keep_result else None)
 
 
 def write_estimates(
