@@ -150,9 +150,13 @@ def test_runtime_change_keeps_the_pack_state(estimator):
             assert node.friction_coefficient == pytest.approx(ref.friction_coefficient,
                                                               rel=1e-12)
             continue
-        # applied from the first sample after the change: μ scales with μ_ref ...
-        assert node.friction_coefficient == pytest.approx(
-            ref.friction_coefficient * mu_new / mu_old, rel=1e-9)
+        # applied from the first sample after the change: the node's μ is the core's ...
+        assert node.friction_coefficient == pytest.approx(want.friction_coefficient, rel=1e-9)
+        if i == len(before):
+            # ... and scales with μ_ref at the change (same pack state; later samples differ a
+            # little more, as μ's pressure loss follows the pack's own normal force, issue 12)
+            assert node.friction_coefficient == pytest.approx(
+                ref.friction_coefficient * mu_new / mu_old, rel=1e-9)
         assert node.reference_torque == pytest.approx(ref.reference_torque * mu_new / mu_old,
                                                       rel=1e-9)
         if i == len(before):
