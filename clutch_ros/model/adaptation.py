@@ -39,8 +39,10 @@ same sign as the model, ``|y| / |T_1|`` within ``[scale_min, scale_max]`` widene
 ``plausibility_margin``, where ``T_1`` is the model torque at ``s = 1``); after a dropout or
 an implausible value it must be plausible for ``recover_time`` before adapting resumes;
 ``|T| >= min_torque`` and ``|ω_f| >= min_slip`` (below, static friction and noise dominate);
-``|dT/dt| <= max_torque_rate`` (quasi-steady: step transients are the pack dynamics' error,
-not friction's); not a re-initialised sample. A lost or implausible measurement *freezes*
+for the friction scale, quasi-steady operation: ``|dT/dt| <= max_torque_rate`` for at least
+``settle_time`` (step transients are the pack dynamics' and the spline law's error, not
+friction's; the spline gain, whose information is in those transients, adapts there);
+not a re-initialised sample. A lost or implausible measurement *freezes*
 the adaptation (state ``frozen``, what was learned is kept and used, a diagnostic says why);
 the other guards only *pause* it (state ``paused``).
 
@@ -97,7 +99,10 @@ class AdaptationSettings:
         relative_std: relative standard deviation of the torque error [1]
         min_torque: adapt only above this |modelled torque| [N m]
         min_slip: adapt only above this |filtered slip speed| [rad/s]
-        max_torque_rate: adapt only below this |d modelled torque / dt| [N m/s]
+        max_torque_rate: adapt the friction scale only below this |d modelled torque / dt|
+            [N m/s] ...
+        settle_time: ... and this long after it last exceeded it [s] (the spline laws'
+            transients last about spline.time_constant, ~1 s)
         plausibility_margin: widening of the scale bounds for the plausibility check [1]
         recover_time: plausible measurements needed after a dropout before adapting [s]
         apply_tolerance: re-apply the parameters when a scale moved by this fraction [1]
@@ -121,6 +126,7 @@ class AdaptationSettings:
     min_torque: float = 50.0
     min_slip: float = 0.5
     max_torque_rate: float = 1500.0
+    settle_time: float = 1.0
     plausibility_margin: float = 0.25
     recover_time: float = 0.5
     apply_tolerance: float = 2e-3
@@ -142,6 +148,7 @@ class AdaptationSettings:
             "relative_std": self.relative_std >= 0.0,
             "min_torque": self.min_torque >= 0.0, "min_slip": self.min_slip >= 0.0,
             "max_torque_rate": self.max_torque_rate > 0.0,
+            "settle_time": self.settle_time >= 0.0,
             "plausibility_margin": self.plausibility_margin >= 0.0,
             "recover_time": self.recover_time >= 0.0,
             "apply_tolerance": self.apply_tolerance >= 0.0,
@@ -187,6 +194,13 @@ class ParameterFilter:
         """Standard deviations of the parameters, sqrt(diag P)."""
         return (math.sqrt(max(self.P[0][0], 0.0)), math.sqrt(max(self.P[1][1], 0.0)))
 
+    def _inflation(self, i: int, forgetting: float) -> float:
+        """Std factor of forgetting parameter ``i``: variance / λ, capped at the prior."""
+        v = self.P[i][i]
+        if v <= 0.0:
+            return 1.0
+        return math.sqrt(min(v / forgetting, self.prior[i]) / v)
+
     @property
     def covariance(self) -> np.ndarray:
         """P as a 2 x 2 array."""
@@ -210,16 +224,10 @@ class ParameterFilter:
         a0, a1 = bool(active[0]), bool(active[1])
         if not (a0 or a1):
             return innovation
-        # forgetting on the active block, variances capped at the prior (no wind-up)
-        d = [1.0, 1.0]
-        for i, on in ((0, a0), (1, a1)):
-            if on:
-                v = P[i][i] / forgetting
-                d[i] = math.sqrt(min(v, self.prior[i]) / v) / math.sqrt(forgetting) \
-                    if v > 0.0 else 0.0
-        p00 = P[0][0] * d[0] * d[0] if a0 else 0.0
-        p11 = P[1][1] * d[1] * d[1] if a1 else 0.0
-        p01 = P[0][1] * d[0] * d[1] if (a0 and a1) else 0.0
+        # forgetting on the active parameters, variances capped at the prior (no wind-up)
+        d0 = self._inflation(0, forgetting) if a0 else 1.0
+        d1 = self._inflation(1, forgetting) if a1 else 1.0
+        p00, p11, p01 = P[0][0] * d0 * d0, P[1][1] * d1 * d1, P[0][1] * d0 * d1
         if not a0:
             h0 = 0.0
         if not a1:
@@ -227,24 +235,20 @@ class ParameterFilter:
         ph0 = p00 * h0 + p01 * h1  # P h
         ph1 = p01 * h0 + p11 * h1
         s = h0 * ph0 + h1 * ph1 + noise_var
-        k0, k1 = ph0 / s, ph1 / s
-        # Joseph form (I - k h) P (I - k h)^T + R k k^T, symmetric and PSD
+        # an inactive parameter gets no gain (Schmidt "consider" update): it stays, and the
+        # Joseph form below keeps P symmetric and positive semi-definite for any gain
+        k0 = ph0 / s if a0 else 0.0
+        k1 = ph1 / s if a1 else 0.0
         m00, m01, m10, m11 = 1.0 - k0 * h0, -k0 * h1, -k1 * h0, 1.0 - k1 * h1
         q00 = m00 * p00 + m01 * p01
         q01 = m00 * p01 + m01 * p11
         q10 = m10 * p00 + m11 * p01
         q11 = m10 * p01 + m11 * p11
-        n00 = q00 * m00 + q01 * m01 + noise_var * k0 * k0
-        n01 = q00 * m10 + q01 * m11 + noise_var * k0 * k1
-        n11 = q10 * m10 + q11 * m11 + noise_var * k1 * k1
-        if a0:
-            P[0][0] = n00
-            th[0] = min(max(th[0] + k0 * innovation, self.lower[0]), self.upper[0])
-        if a1:
-            P[1][1] = n11
-            th[1] = min(max(th[1] + k1 * innovation, self.lower[1]), self.upper[1])
-        if a0 and a1:
-            P[0][1] = P[1][0] = n01
+        P[0][0] = q00 * m00 + q01 * m01 + noise_var * k0 * k0
+        P[0][1] = P[1][0] = q00 * m10 + q01 * m11 + noise_var * k0 * k1
+        P[1][1] = q10 * m10 + q11 * m11 + noise_var * k1 * k1
+        th[0] = min(max(th[0] + k0 * innovation, self.lower[0]), self.upper[0])
+        th[1] = min(max(th[1] + k1 * innovation, self.lower[1]), self.upper[1])
         self.updates += 1
         return innovation
 
@@ -254,9 +258,11 @@ class AdaptationStatus:
     """The adaptation at one sample (mirrors the ClutchEstimate adaptation fields).
 
     Attributes:
-        friction_scale: adapted μ multiplier applied to the model [1]
+        friction_scale: the adapted μ multiplier the model of this estimate ran with [1]
+            (the estimate is applied in steps, ``apply_tolerance``/``apply_interval``; the
+            latest value is :attr:`AdaptiveEstimator.friction_scale`)
         friction_scale_std: its standard deviation [1]
-        spline_gain_scale: adapted κ/κ_0 [1] (1 when the law has no gain)
+        spline_gain_scale: adapted κ/κ_0 the model ran with [1] (1 when the law has none)
         spline_gain_scale_std: its standard deviation [1]
         adapting: the parameters were updated at this sample
         state: ``adapting`` | ``paused`` | ``frozen`` | ``waiting`` | ``off``
@@ -288,6 +294,7 @@ class _Guard:
     plausible_since: float | None = None
     last_torque: float | None = None
     last_stamp: float | None = None
+    last_fast: float = -math.inf
     counts: dict = field(default_factory=lambda: {"adapting": 0, "paused": 0, "frozen": 0,
                                                   "waiting": 0, "off": 0,
                                                   "dropouts": 0, "implausible": 0})
@@ -431,7 +438,7 @@ class AdaptiveEstimator:
 
     def _status(self, adapting: bool, state: str, reason: str) -> AdaptationStatus:
         std = self.filter.std
-        return AdaptationStatus(self.friction_scale, float(std[0]), self.spline_gain_scale,
+        return AdaptationStatus(self.applied[0], float(std[0]), self.applied[1],
                                 float(std[1]) if self.gain_identifiable else 0.0,
                                 adapting, state, reason)
 
@@ -458,6 +465,9 @@ class AdaptiveEstimator:
             return self._finish(False, "frozen", "torque measurement dropped out; "
                                 "adapted values kept")
         g.seen_measurement = True
+        if rate > s.max_torque_rate:
+            g.last_fast = t
+        settled = t - g.last_fast >= s.settle_time
         why = self._out_of_range(y, est.lamella_temperature)
         unit = torque / self.applied[0]  # model torque at s = 1 [N m]
         reason = ""
@@ -467,9 +477,7 @@ class AdaptiveEstimator:
             reason = f"torque below {s.min_torque:g} N m"
         elif abs(est.slip_speed_filtered) < s.min_slip:
             reason = f"slip below {s.min_slip:g} rad/s"
-        elif rate > s.max_torque_rate:
-            reason = f"torque changing faster than {s.max_torque_rate:g} N m/s"
-        if not why and not reason:
+        if not why and not reason and settled:
             why = self._implausible(y, unit)
         if why:
             g.counts["implausible"] += not g.implausible
@@ -483,9 +491,13 @@ class AdaptiveEstimator:
         if t - g.plausible_since < s.recover_time:
             return self._finish(False, "paused", "measurement plausible again; waiting "
                                 f"{s.recover_time:g} s before adapting")
+        gain_on = self.gain_identifiable and abs(sensitivity) >= s.min_gain_sensitivity
+        if not (settled or gain_on):
+            return self._finish(False, "paused", f"transient: torque changed faster than "
+                                f"{s.max_torque_rate:g} N m/s within {s.settle_time:g} s")
         phi = (unit, sensitivity)
-        active = (True, self.gain_identifiable and abs(sensitivity) >= s.min_gain_sensitivity)
         target = y - torque + unit * self.applied[0] + sensitivity * self.applied[1]
         noise = s.measurement_std ** 2 + (s.relative_std * y) ** 2
-        self.filter.update(phi, target, noise, math.exp(-dt / s.forgetting_time), active)
+        self.filter.update(phi, target, noise, math.exp(-dt / s.forgetting_time),
+                           (settled, gain_on))
         return self._finish(True, "adapting", "")
