@@ -25,6 +25,7 @@ from pathlib import Path
 
 from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
 from clutch_ros.cli.dispatch import emit_json
+from clutch_ros.cli.replay_adapt import AdaptiveRun, add_adapt_options, print_adaptation
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
@@ -53,6 +54,7 @@ def add_parser(sub) -> None:
                         "(accuracy, P_diff vs spline force, residual cross-correlation), and the "
                         "RMSE per sequence")
     add_calibration_options(p, "the report's measured P_diff (with --report)")
+    add_adapt_options(p)
     p.add_argument("--json", action="store_true", help="print a JSON list, one object per bag")
     p.set_defaults(func=run)
 
@@ -76,6 +78,7 @@ def run(args) -> int:
     if args.calibration_file and not args.report:
         raise ClutchError("--calibration-file is used by the report's P_diff view: give "
                           "--report DIR too")
+    adaptive = AdaptiveRun(args, params)
     report = None
     if args.report:
         report = ReplayReport(Path(args.report), params, params.spline.law,
@@ -84,12 +87,18 @@ def run(args) -> int:
     results = []
     for bag, out in zip(bags, outs):
         start = time.perf_counter()
-        result = replay(bag, params)
+        write = None
+        if adaptive.enabled:
+            result, write = adaptive.replay(bag)
+        else:
+            result = replay(bag, params)
         summary = result.summary
         seconds = time.perf_counter() - start
         summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
         if out is not None:
-            summary["estimates_written"] = write_estimates(out, result, storage=args.storage)
+            summary["estimates_written"] = (
+                write(out, args.storage) if write is not None
+                else write_estimates(out, result, storage=args.storage))
             summary["output"] = str(out)
         if report is not None:
             summary["plots"] = report.add(result)
@@ -97,6 +106,10 @@ def run(args) -> int:
         del result  # the report keeps what it needs; the next bag may be large
     if report is not None:
         report.finish(results)
+    saved = adaptive.finish()
+    if saved:
+        for r in results:
+            r["saved_params"] = saved
     if args.json:
 
         emit_json(results)
@@ -107,6 +120,10 @@ def run(args) -> int:
                 f"RMSE {r['rmse_nm']:.2f} N m (reference {r['reference_rmse_nm']:.2f} N m), "
                 f"within ±10 % {100 * r['within_10pct']:.1f} %, accuracy "
                 f"{r['min_accuracy']:.3f}..{r['max_accuracy']:.3f}\n")
+            if adaptive.enabled:
+                print_adaptation(r)
+        if saved:
+            sys.stdout.write(f"adapted parameters written to {saved}\n")
         if report is not None:
             plots = {p for r in results for p in r["plots"]}
             sys.stdout.write(f"report: {len(plots)} PNG files in {args.report}\n")

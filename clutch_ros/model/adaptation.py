@@ -62,10 +62,28 @@ from clutch_ros.model.estimator import ClutchEstimator, Estimate
 from clutch_ros.model.inverse import capacity_scalar
 
 __all__ = ["AdaptationSettings", "AdaptationStatus", "AdaptiveEstimate", "AdaptiveEstimator",
-           "ParameterFilter", "GAIN_LAWS", "scaled_params"]
+           "ParameterFilter", "GAIN_LAWS", "fork_estimator", "scaled_params"]
 
 #: Spline laws whose ``spline.gain`` the adaptation may estimate.
 GAIN_LAWS = ("ff_t", "ff_v")
+
+
+def fork_estimator(estimator: ClutchEstimator, params=None, **kwargs) -> ClutchEstimator:
+    """Return an independent :class:`ClutchEstimator` in the same state as ``estimator``.
+
+    Pack state (:meth:`PackModel.restore`), slip filter and clock are copied; ``params``
+    (default: the same) are then applied with :meth:`ClutchEstimator.set_params`, so a
+    changed spline gain rescales the law's state as if it had always applied. (``deepcopy``
+    is not an option: the pack's state vector has numpy views that a deep copy detaches.)
+    ``kwargs`` are the estimator's constructor options.
+    """
+    other = ClutchEstimator(estimator.params, **kwargs)
+    other.pack.restore(estimator.pack.state)
+    other.slip_filter = copy.copy(estimator.slip_filter)
+    other.last_stamp = estimator.last_stamp
+    if params is not None:
+        other.set_params(params)
+    return other
 
 
 def scaled_params(params, friction_scale: float, gain_scale: float = 1.0):
@@ -364,6 +382,14 @@ class AdaptiveEstimator:
         self.gain_identifiable = self.settings.spline_gain and params.spline.law in GAIN_LAWS
         self._apply(force=True)
 
+    def reset(self) -> None:
+        """Forget the time history (a new recording starts); keep what was learned."""
+        self.estimator.reset()
+        self._shadow = None
+        g = self._guard
+        g.last_stamp = g.last_torque = g.plausible_since = None
+        g.last_fast = -math.inf
+
     def set_enabled(self, enabled: bool) -> None:
         """Switch adaptation on or off at runtime (what was learned is kept either way)."""
         self.settings = replace(self.settings, enabled=bool(enabled))
@@ -382,10 +408,9 @@ class AdaptiveEstimator:
     def _start_shadow(self) -> None:
         """Fork the shadow estimator (same state, gain g (1 + δ)) before a sample."""
         if self._shadow is None:
-            self._shadow = copy.deepcopy(self.estimator)
-            self._shadow.set_params(scaled_params(
+            self._shadow = fork_estimator(self.estimator, scaled_params(
                 self.base_params, self.applied[0],
-                self.applied[1] * (1.0 + self.settings.gain_step)))
+                self.applied[1] * (1.0 + self.settings.gain_step)), **self._kwargs)
 
     def _sensitivity(self, est: Estimate, args) -> float:
         """∂T/∂g [N m per unit relative gain] by the shadow estimator at g (1 + δ)."""

@@ -5,11 +5,13 @@ The back end of ``clutch replay --adapt [--save-params FILE]``. Each bag's RigSt
 :class:`clutch_ros.model.adaptation.AdaptiveEstimator`, exactly as the live estimator node
 runs it (same stamps in seconds, rejected samples skipped); several bags run in order through
 one estimator, so what was learned on one bag carries into the next, as on a rig that records
-run after run. The result holds the estimates (an :class:`~clutch_ros.model.EstimateBatch`,
-so ``-o`` and ``--report`` work unchanged), the adaptation's time series (scale, its standard
-deviation, ``adapting``, ``frozen``), the diagnostic events (each change into or out of a
-frozen state, with its reason: what the node reports on ``/diagnostics``) and the replay
-figures. :func:`save_adapted_params` writes a complete parameter file with the adapted values
+run after run (each bag restarts the estimator's clock:
+:meth:`~clutch_ros.model.adaptation.AdaptiveEstimator.reset`). The result holds the
+estimates (an :class:`~clutch_ros.model.EstimateBatch`, so ``-o`` and ``--report`` work
+unchanged), the adaptation's time series (scale, its standard deviation, ``adapting``,
+``frozen``), the diagnostic events (each change into or out of a frozen state, with its
+reason: what the node reports on ``/diagnostics``) and the replay figures.
+:func:`save_adapted_params` writes a complete parameter file with the adapted values
 (μ_ref, μ_min and the spline gain scaled), which the nodes and every ``clutch`` subcommand
 accept; replaying with it (no adaptation: frozen) is the out-of-sample check.
 
@@ -104,6 +106,7 @@ def adaptive_replay(bags, params, settings: AdaptationSettings | None = None, *,
     ae = estimator or AdaptiveEstimator(params, settings)
     out = []
     for bag in bags:
+        ae.reset()  # each bag is its own recording (own clock); the learned values stay
         path = Path(bag)
         rig = read_rig_states(path)
         if len(rig) == 0:
