@@ -355,6 +355,8 @@ class TorqueController:
             reasons.append("pressure limit")
         rise, fall = s.rise_rate_limit * s.period, s.fall_rate_limit * s.period
         limited = self.pressure + max(-fall, min(rise, pressure - self.pressure))
+        # the limits win over the rate limits (a start from 0 Pa below min_pressure)
+        limited = min(max(limited, s.min_pressure), s.max_pressure)
         if limited != pressure:
             reasons.append("rate limit")
         if not state:
@@ -370,6 +372,7 @@ class TorqueController:
         # the trim's share: this command minus the one the same tick gives without it
         free = min(max(untrimmed, s.min_pressure), s.max_pressure)
         free = self.pressure + max(-fall, min(rise, free - self.pressure))
+        free = min(max(free, s.min_pressure), s.max_pressure)
         share = limited - free
         self.pressure = limited
         return ControllerOutput(limited, self.request, cmd.predicted_torque, bool(reasons),
