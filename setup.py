@@ -14,6 +14,7 @@ NODES = {
     "controller": "clutch_ros.nodes.controller:main",
     "recorder": "clutch_ros.nodes.recorder:main",
     "bag_player": "clutch_ros.nodes.bag_player:main",
+    "dashboard": "clutch_ros.nodes.dashboard:main",
 }
 
 setup(
@@ -23,7 +24,9 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/params", sorted(glob("params/*.yaml") + glob("params/*.dbc"))),
+        (f"share/{PACKAGE}/params",
+         sorted(glob("params/*.yaml") + glob("params/*.dbc") + glob("params/*.json"))),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*.launch.xml"))),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

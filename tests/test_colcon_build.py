@@ -48,6 +48,10 @@ def test_both_packages_installed(workspace):
     assert (share / "package.xml").is_file()
     assert (share / "params" / "rig.dbc").is_file()
     assert list((share / "params").glob("*.yaml")), "no parameter presets installed"
+    launch = sorted(p.name for p in (share / "launch").glob("*.launch.xml"))
+    assert launch == ["rig.launch.xml", "sim.launch.xml"], launch
+    assert (workspace / "install" / "clutch_msgs" / "share" / "clutch_msgs" / "srv"
+            / "SetPaused.srv").is_file()
     marker = (workspace / "install" / "clutch_ros" / "share" / "ament_index"
               / "resource_index" / "packages" / "clutch_ros")
     assert marker.is_file()

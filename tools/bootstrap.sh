@@ -7,7 +7,7 @@
 #   2. create .venv and install the pinned requirements.txt (ROS 2 wheels, python-can,
 #      cantools, numpy, scipy, rosbags, pytest, ...);
 #   3. rewrite the build machine's Python include dirs baked into the ROS message wheels'
-#      exported CMake targets to this machine's (see ../shared/DESIGN.md);
+#      exported CMake targets to this machine's (see README.md, "Set up and go");
 #   4. build and install the interface package msg_defs/ (clutch_msgs) into .venv;
 #   5. make `clutch_ros` importable from the source tree (editable, via a .pth file) and put
 #      the `clutch` command into .venv/bin.

@@ -1,9 +1,10 @@
 """Import a rig CSV export into a RigState bag (the ``clutch import FILE.csv`` back end).
 
-Contract (``DESIGN.md``): the header names carry units; ``time_s``, ``pressure_bar``,
-``lamella_temp_c`` and ``diff_speed_rpm`` are required; ``oil_temp_c``, ``input_speed_rpm``,
-``output_speed_rpm``, ``torque_nm``, ``torque_request_nm``, ``ff_front_1_v`` ... ``ff_front_4_v``,
-``ff_rear_1_v`` ... ``ff_rear_4_v``, ``wheel_fl_rpm``, ``wheel_fr_rpm``, ``wheel_rl_rpm``,
+Contract (README.md, "The clutch command"): the header names carry units; ``time_s``,
+``pressure_bar``, ``lamella_temp_c`` and ``diff_speed_rpm`` are required; ``oil_temp_c``,
+``input_speed_rpm``, ``output_speed_rpm``, ``torque_nm``, ``torque_request_nm``,
+``ff_front_1_v`` ... ``ff_front_4_v``, ``ff_rear_1_v`` ... ``ff_rear_4_v``, ``wheel_fl_rpm``,
+``wheel_fr_rpm``, ``wheel_rl_rpm``,
 ``wheel_rr_rpm`` and ``pump_current_a`` are optional. One ``RigState`` per data row on
 ``/rig_state`` (absolute, as ``ros2 bag record`` stores it), bag timestamp = header stamp =
 ``time_offset_ns`` + time.

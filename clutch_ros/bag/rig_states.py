@@ -250,7 +250,8 @@ def read_rig_states(
             if len(found) != 1:
                 raise BagError(
                     bag.path,
-                    f"expected one {RIG_STATE} topic, found {found or 'none'}; pass the topic",
+                    f"expected one {RIG_STATE} topic, found {found or 'none'}; choose the "
+                    "topic with --topic TOPIC",
                 )
             topic = found[0]
         topic = topic_name(topic)

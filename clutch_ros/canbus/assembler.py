@@ -21,16 +21,28 @@ bit  group               frame              required   RigState fields
 ===  ==================  =================  =========  ==================================
 
 A group is stale when it is older than its maximum age (default: 5 cycle times, at least
-10 ms: 10 ms for 1 ms frames, 50 ms for 10 ms frames, 500 ms for RigTemperatures), or when it
-is required and was never received. Optional groups never received are not stale; their
-arrays stay empty.
+10 ms: 10 ms for 1 ms frames, 50 ms for 10 ms frames, 500 ms for RigTemperatures), when it
+is required and was never received, when its newest frame held a value outside the DBC
+signal's range (that frame is counted as decode error ``range`` and its values are not used:
+the sample keeps the group's last valid values, flagged), or when a field it fills is NaN
+because it never arrived while a sibling did (``ff_voltages`` with only the rear FlexiForce
+frame: the front group is flagged). So every non-finite value of a sample is flagged, and
+every flagged group's values are either the last valid ones or NaN. Optional groups never
+received and without a sibling are not stale; their arrays stay empty.
+
+Data path: :meth:`RigStateAssembler.feed` decodes a frame and writes its values straight into
+the live sample (one dict lookup for the frame key, no re-assembly);
+:meth:`RigStateAssembler.snapshot` copies it and sets ``stale_mask``. Frames that are no valid
+CAN frame (an 11-bit identifier above 0x7FF, more than 8 bytes without the FD flag, a DLC that
+differs from the data length) are counted as decode error ``invalid_frame``.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import threading
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 import can
@@ -39,7 +51,7 @@ from clutch_ros.canbus.counters import CounterSnapshot, FrameCounters, classify_
 from clutch_ros.canbus.dbc import RigDatabase, counter_gap, frame_key
 from clutch_ros.canbus.errors import FrameDecodeError
 from clutch_ros.errors import ConfigError
-from clutch_ros.rigstate import FF_SIGNALS, WHEEL_SIGNALS, RigSample
+from clutch_ros.rigstate import FF_SIGNALS, FIELDS, WHEEL_SIGNALS, RigSample
 
 __all__ = [
     "DEFAULT_GROUPS",
@@ -73,6 +85,7 @@ DEFAULT_GROUPS: tuple[tuple[str, str, bool], ...] = (
 )
 
 _FF_FRONT, _FF_REAR = (names for _, names in FF_SIGNALS)
+_FF_MESSAGES = tuple(message for message, _ in FF_SIGNALS)
 _WHEELS = WHEEL_SIGNALS[1]
 _PUMP_FAULTS = (
     "PumpSts_FltOverCurrent",
@@ -130,7 +143,10 @@ class RigStateAssembler(can.Listener):
                 )
             )
         self.groups: tuple[SignalGroup, ...] = tuple(groups)
-        self._group_key = {g.name: self.db.frame(g.message).key for g in self.groups}
+        #: frame key -> its group (rig frames only)
+        self._group_of = {self.db.frame(g.message).key: g for g in self.groups}
+        self._fill = {key: _filler(g.message) for key, g in self._group_of.items()}
+        self._sibling = {"ff_front": "ff_rear", "ff_rear": "ff_front"}
         self._counter_signal = {
             spec.key: spec.counter_signal for spec in self.db.frames if spec.counter_signal
         }
@@ -139,61 +155,81 @@ class RigStateAssembler(can.Listener):
         self._socketcan_errors = socketcan_error_frames
         self._lock = threading.Lock()
         self._counters = FrameCounters()
-        self._latest: dict[int, tuple[float, dict[str, float | int]]] = {}
+        self._live = RigSample()
+        self._stamps: dict[str, float] = {}  # group -> bus time [s] of its newest valid frame
+        self._rejected: set[str] = set()  # groups whose newest frame was out of range
         self._last_counter: dict[int, tuple[float, int]] = {}
         self._newest_time: float | None = None
 
     # -- input ----------------------------------------------------------------------------
 
-    def feed(self, msg: can.Message) -> None:
-        """Count and, for known data frames, decode one frame. Never raises for bad frames."""
-        values = None
-        reason = None
-        key = None
-        kind = "error" if msg.is_error_frame else "remote" if msg.is_remote_frame else "data"
-        if kind == "data":
-            key = frame_key(msg.arbitration_id, msg.is_extended_id)
-            if key in self._known:
-                try:
-                    values = self.db.decode(msg.arbitration_id, msg.data, msg.is_extended_id)
-                except FrameDecodeError as err:
-                    reason = err.reason
-        elif kind == "remote":
-            key = frame_key(msg.arbitration_id, msg.is_extended_id)
-        stamp = float(msg.timestamp)
-        with self._lock:
-            c = self._counters
-            c.frames_total += 1
-            if kind == "error":
+    def feed(self, msg: can.Message) -> int | None:
+        """Count one frame and, for a rig data frame, decode it into the live sample.
+
+        Returns the frame key of a data frame (:func:`frame_key`), None for error, remote and
+        invalid frames. Never raises for bad frames.
+        """
+        if msg.is_error_frame:
+            with self._lock:
+                c = self._counters
+                c.frames_total += 1
                 c.error_frames += 1
                 if self._socketcan_errors:
                     bus_off, overflow = classify_socketcan_error(msg.arbitration_id, msg.data)
                     c.bus_off_frames += bus_off
                     c.controller_overflows += overflow
-                return
-            c.per_id[key] += 1
+            return None
+        key = frame_key(msg.arbitration_id, msg.is_extended_id)
+        valid = _valid_frame(msg)
+        values = reason = None
+        if valid and not msg.is_remote_frame and key in self._known:
+            try:
+                values = self.db.decode(msg.arbitration_id, msg.data, msg.is_extended_id)
+            except FrameDecodeError as err:
+                reason, values = err.reason, err.values
+        stamp = float(msg.timestamp)
+        with self._lock:
+            c = self._counters
+            c.frames_total += 1
             if msg.is_fd:
                 c.fd_frames += 1
-            if kind == "remote":
+            if msg.is_remote_frame:
                 c.remote_frames += 1
-                return
+                if key in self._known:
+                    c.per_id[key] += 1
+                return None
             c.data_frames += 1
+            if not valid:
+                c.decode_errors["invalid_frame"] += 1
+                return None
             if key not in self._known:
-                c.unknown_frames += 1
-                c.unknown_ids.add(key)
-                return
-            if values is None:
-                c.decode_errors[reason or "payload"] += 1
-                return
+                c.count_unknown(key)
+                return key
+            c.per_id[key] += 1
+            if reason is not None:
+                c.decode_errors[reason] += 1
+                if reason == "range":  # an intact frame: its counter still counts
+                    self._track_counter(key, stamp, values)
+                    group = self._group_of.get(key)
+                    if group is not None:
+                        self._rejected.add(group.name)
+                return key
             c.decoded_frames += 1
-            self._latest[key] = (stamp, values)
+            self._track_counter(key, stamp, values)
             if self._newest_time is None or stamp > self._newest_time:
                 self._newest_time = stamp
-            counter_name = self._counter_signal.get(key)
-            if counter_name is not None:
-                self._track_counter(key, stamp, int(values[counter_name]))
+            group = self._group_of.get(key)
+            if group is not None:
+                self._fill[key](self._live, values)
+                self._stamps[group.name] = stamp
+                self._rejected.discard(group.name)
+        return key
 
-    def _track_counter(self, key: int, stamp: float, counter: int) -> None:
+    def _track_counter(self, key: int, stamp: float, values) -> None:
+        name = self._counter_signal.get(key)
+        if name is None or values is None:
+            return
+        counter = int(values[name])
         last = self._last_counter.get(key)
         self._last_counter[key] = (stamp, counter)
         if last is None:
@@ -237,65 +273,87 @@ class RigStateAssembler(can.Listener):
             return self._newest_time
 
     def snapshot(self, now: float | None = None) -> RigSample:
-        """Build a :class:`RigSample` from the latest values.
+        """Return a copy of the live :class:`RigSample` with ages and ``stale_mask`` set.
 
         ``now`` [s] is the current time in the bus time base, used for the age check; when
         None the newest decoded frame's timestamp is used (log replay).
         """
         with self._lock:
-            latest = {g.name: self._latest.get(self._group_key[g.name]) for g in self.groups}
+            sample = copy.copy(self._live)
+            sample.ff_voltages = list(self._live.ff_voltages)
+            sample.wheel_speeds = list(self._live.wheel_speeds)
+            stamps = dict(self._stamps)
+            rejected = set(self._rejected)
             newest = self._newest_time
         if now is None:
             now = newest if newest is not None else 0.0
-        sample = RigSample()
+        sample.ages, sample.stale, sample.stale_mask = {}, [], 0
         for group in self.groups:
-            entry = latest[group.name]
-            age = math.inf if entry is None else max(0.0, now - entry[0])
+            stamp = stamps.get(group.name)
+            age = math.inf if stamp is None else max(0.0, now - stamp)
             sample.ages[group.name] = age
-            if (entry is None and group.required) or (entry is not None and age > group.max_age):
+            sibling = self._sibling.get(group.name)
+            if (
+                (stamp is None and (group.required or (sibling in stamps)))
+                or (stamp is not None and age > group.max_age)
+                or group.name in rejected
+            ):
                 sample.stale_mask |= 1 << group.bit
                 sample.stale.append(group.name)
-        stamps = [entry[0] for entry in latest.values() if entry is not None]
-        sample.stamp = max(stamps) if stamps else None
-        self._fill_values(sample, {k: (v[1] if v else None) for k, v in latest.items()})
+        sample.stamp = max(stamps.values()) if stamps else None
+        if sample.stale_mask & 1:  # pressure_torque stale: no valid measured torque
+            sample.has_measured_torque = False
         return sample
 
-    @staticmethod
-    def _fill_values(sample: RigSample, v: Mapping[str, Mapping[str, float | int] | None]) -> None:
-        fast = v["pressure_torque"]
-        if fast is not None:
-            sample.actuating_pressure = float(fast["ActuatingPressure"])
-            sample.measured_torque = float(fast["MeasuredTorque"])
-            sample.has_measured_torque = bool(fast["MeasuredTorqueValid"]) and not (
-                sample.stale_mask & 1
-            )
-        speeds = v["shaft_speeds"]
-        if speeds is not None:
-            sample.input_speed = float(speeds["InputShaftSpeed"])
-            sample.output_speed = float(speeds["OutputShaftSpeed"])
+
+def _valid_frame(msg: can.Message) -> bool:
+    """Return False for a frame no CAN controller could have sent (see module docstring)."""
+    limit = 0x20000000 if msg.is_extended_id else 0x800
+    size = len(msg.data)
+    if not 0 <= msg.arbitration_id < limit or size > (64 if msg.is_fd else 8):
+        return False
+    return msg.is_remote_frame or msg.dlc == size
+
+
+def _scalar_writer(message: str) -> tuple[tuple[str, str], ...]:
+    """``(RigState field, DBC signal)`` pairs of the scalars frame ``message`` feeds."""
+    return tuple((f.name, f.dbc[1]) for f in FIELDS
+                 if f.kind == "scalar" and f.dbc is not None and f.dbc[0] == message)
+
+
+def _filler(message: str) -> Callable[[RigSample, Mapping[str, float | int]], None]:
+    """Return the function that writes the decoded values of ``message`` into a sample."""
+    scalars = _scalar_writer(message)
+
+    def write_scalars(sample: RigSample, v: Mapping[str, float | int]) -> None:
+        for name, signal in scalars:
+            setattr(sample, name, float(v[signal]))
+
+    if message == "RigFast":
+        def fill(sample, v):
+            write_scalars(sample, v)
+            sample.has_measured_torque = bool(v["MeasuredTorqueValid"])
+    elif message == "RigSpeed":
+        def fill(sample, v):
+            write_scalars(sample, v)
             sample.slip_speed = sample.input_speed - sample.output_speed
-        temps = v["temperatures"]
-        if temps is not None:
-            sample.lamella_temperature = float(temps["LamellaTemperature"])
-            sample.oil_temperature = float(temps["OilTemperature"])
-        pump = v["pump_status"]
-        if pump is not None:
-            sample.pump_current = float(pump["PumpSts_Current"])
-            sample.pump_pressure = float(pump["PumpSts_ActualPressure"])
-            sample.pump_state = int(pump["PumpSts_State"])
-            sample.pump_faults = sum(
-                1 << i for i, name in enumerate(_PUMP_FAULTS) if pump[name]
-            )
-        front, rear = v["ff_front"], v["ff_rear"]
-        if front is not None or rear is not None:
-            sample.ff_voltages = [
-                float(part[name]) if part is not None else _NAN
-                for part, names in ((front, _FF_FRONT), (rear, _FF_REAR))
-                for name in names
-            ]
-        wheels = v["wheel_speeds"]
-        if wheels is not None:
-            sample.wheel_speeds = [float(wheels[name]) for name in _WHEELS]
-        request = v["torque_request"]
-        if request is not None:
-            sample.torque_request = float(request["TorqueRequest"])
+    elif message == "PumpStatus":
+        def fill(sample, v):
+            write_scalars(sample, v)
+            sample.pump_pressure = float(v["PumpSts_ActualPressure"])
+            sample.pump_state = int(v["PumpSts_State"])
+            sample.pump_faults = sum(1 << i for i, n in enumerate(_PUMP_FAULTS) if v[n])
+    elif message in (_FF_MESSAGES[0], _FF_MESSAGES[1]):
+        offset = 4 * _FF_MESSAGES.index(message)
+        signals = _FF_FRONT if offset == 0 else _FF_REAR
+
+        def fill(sample, v):
+            if not sample.ff_voltages:
+                sample.ff_voltages = [_NAN] * 8
+            sample.ff_voltages[offset:offset + 4] = [float(v[n]) for n in signals]
+    elif message == WHEEL_SIGNALS[0]:
+        def fill(sample, v):
+            sample.wheel_speeds = [float(v[n]) for n in _WHEELS]
+    else:
+        fill = write_scalars
+    return fill

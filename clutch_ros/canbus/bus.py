@@ -5,7 +5,11 @@
 :class:`can.BusABC` that wraps such a bus: when receiving or sending fails
 (``CanOperationError``, ``OSError``, ...), the controller reports bus-off (``BusState.ERROR``
 or a SocketCAN bus-off error frame) or the adapter cannot be opened, it closes the bus and
-reopens it with exponential back-off. It never raises from :meth:`~can.BusABC.recv` (so a
+reopens it with exponential back-off. A received datagram or frame that is no valid CAN frame
+(:func:`~clutch_ros.canbus.udp.malformed_reason`: not msgpack, an 11-bit identifier above
+0x7FF, a DLC that differs from the data length, ...) is counted by reason and dropped; it
+never takes the link down, since the transport itself is fine. It never raises from
+:meth:`~can.BusABC.recv` (so a
 :class:`can.Notifier` on it never dies), reports every state transition to a callback and
 logs rate-limited (no warning storm).
 
@@ -21,7 +25,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
@@ -33,7 +37,12 @@ import can.interfaces
 from clutch_ros.canbus.config import BusConfig, open_bus, parse_filters
 from clutch_ros.canbus.counters import RateLimiter, classify_socketcan_error
 from clutch_ros.canbus.errors import BusConfigError, BusUnavailable
-from clutch_ros.canbus.udp import ECHOING_INTERFACES, EchoFilter, tune_udp_multicast
+from clutch_ros.canbus.udp import (
+    ECHOING_INTERFACES,
+    EchoFilter,
+    malformed_reason,
+    tune_udp_multicast,
+)
 
 __all__ = [
     "BusConfig",  # BusConfig, open_bus, parse_filters: re-exported from canbus.config
@@ -85,6 +94,8 @@ class LinkStatus:
     bus_state: str
     suppressed_reports: int
     own_echoes: int = 0
+    malformed_frames: int = 0
+    malformed_by_reason: dict[str, int] | None = None
 
 
 class ReconnectingBus(can.BusABC):
@@ -173,6 +184,9 @@ class ReconnectingBus(can.BusABC):
         self.failed_attempts = 0
         self.send_failures = 0
         self.bus_off_frames = 0
+        #: received datagrams/frames that were no valid CAN frame, dropped (by reason)
+        self.malformed: Counter[str] = Counter()
+        self._malformed_limiter = RateLimiter(report_interval)
         #: the last 64 transitions
         self.events: deque[LinkEvent] = deque(maxlen=64)
         with self._lock:
@@ -292,7 +306,11 @@ class ReconnectingBus(can.BusABC):
             while msg is not None and self._echo is not None and self._echo.is_echo(msg):
                 msg = bus.recv(0.0)
         except Exception as err:  # CanOperationError, OSError, driver errors
-            self._fail(bus, f"receive failed: {type(err).__name__}: {err}")
+            reason = malformed_reason(err)
+            if reason is None:
+                self._fail(bus, f"receive failed: {type(err).__name__}: {err}")
+            else:
+                self._count_malformed(reason, err)
             return None, False
         if msg is not None and msg.is_error_frame and self._socketcan_errors:
             bus_off, _ = classify_socketcan_error(msg.arbitration_id, msg.data)
@@ -302,6 +320,23 @@ class ReconnectingBus(can.BusABC):
                     self._fail(bus, "bus-off error frame")
         self._poll_state(bus)
         return msg, True  # the underlying bus applied the filters
+
+    def _count_malformed(self, reason: str, err: BaseException) -> None:
+        with self._lock:
+            self.malformed[reason] += 1
+            now = self._clock()
+            if self._malformed_limiter.allow(now):
+                extra = self._malformed_limiter.suppressed_at_last_allow
+                self._log.warning(
+                    "CAN %s: dropped a malformed frame (%s: %s)%s",
+                    self.config.describe(), reason, err.__cause__,
+                    f", {extra} more since the last report" if extra else "",
+                )
+
+    @property
+    def malformed_frames(self) -> int:
+        """Number of received datagrams/frames dropped because they were no valid frame."""
+        return sum(self.malformed.values())
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         """Send ``msg`` (``timeout`` [s]); raises :class:`BusUnavailable` when it cannot."""
@@ -382,6 +417,8 @@ class ReconnectingBus(can.BusABC):
                 bus_state=self.state.name,
                 suppressed_reports=self._limiter.suppressed,
                 own_echoes=self.own_echoes,
+                malformed_frames=self.malformed_frames,
+                malformed_by_reason=dict(self.malformed),
             )
 
     def shutdown(self) -> None:

@@ -1,5 +1,10 @@
 """Frame counters, per-identifier rates, a rate limiter for reports, a RigState pacer.
 
+Memory stays bounded whatever the bus carries: per-identifier counts are kept for the frames
+of the DBC only, and unknown identifiers in a table of at most :data:`UNKNOWN_ID_CAPACITY`
+distinct keys (exact counts for the keys in it; frames of further keys are summed in
+``unknown_untracked``).
+
 Nothing here takes a lock: :class:`FrameCounters` is updated under the lock of its owner
 (:class:`clutch_ros.canbus.assembler.RigStateAssembler`). Times are seconds in whatever base
 the caller passes (bus time or a monotonic clock), never read from the system clock here.
@@ -13,12 +18,16 @@ from dataclasses import dataclass, field
 from clutch_ros.canbus.dbc import format_frame_key
 
 __all__ = [
+    "UNKNOWN_ID_CAPACITY",
     "CounterSnapshot",
     "FrameCounters",
     "PublishPacer",
     "RateLimiter",
     "classify_socketcan_error",
 ]
+
+#: Distinct unknown identifiers counted one by one; frames of further ones are summed.
+UNKNOWN_ID_CAPACITY = 256
 
 # SocketCAN error classes (linux/can/error.h), carried in the error frame's identifier.
 _CAN_ERR_CRTL = 0x00000004
@@ -53,9 +62,11 @@ class CounterSnapshot:
     is the sum of rolling-counter gaps of counter-carrying frames (a 4-bit counter sees at most 15
     consecutive losses; a repeated counter is counted in ``counter_repeats`` instead).
     ``bus_off_frames`` and ``controller_overflows`` are only counted for SocketCAN-style error
-    frames. ``per_id`` counts data and remote frames by frame key
-    (:func:`clutch_ros.canbus.dbc.frame_key`); ``unknown_ids`` holds the keys of data frames
-    not in the DBC.
+    frames. ``per_id`` counts data and remote frames of the DBC's identifiers by frame key
+    (:func:`clutch_ros.canbus.dbc.frame_key`); ``unknown_id_counts`` counts data frames not
+    in the DBC for at most :data:`UNKNOWN_ID_CAPACITY` keys (the first seen), and
+    ``unknown_untracked`` the unknown frames of any further key, so
+    ``sum(unknown_id_counts.values()) + unknown_untracked == unknown_frames``.
     """
 
     frames_total: int = 0
@@ -73,14 +84,27 @@ class CounterSnapshot:
     counter_repeats: int = 0
     listener_errors: int = 0
     per_id: dict[int, int] = field(default_factory=dict)
-    unknown_ids: frozenset[int] = frozenset()
+    unknown_id_counts: dict[int, int] = field(default_factory=dict)
+    unknown_untracked: int = 0
 
-    def unknown_ids_text(self, limit: int = 20) -> str:
-        """Return up to ``limit`` unknown identifiers as text: ``0x123, 0x18EBFF00x, ...``."""
-        keys = sorted(self.unknown_ids)
-        text = ", ".join(format_frame_key(k) for k in keys[:limit])
-        if len(keys) > limit:
-            text += f", ... ({len(keys) - limit} more)"
+    @property
+    def unknown_ids(self) -> frozenset[int]:
+        """Keys of the unknown identifiers counted one by one."""
+        return frozenset(self.unknown_id_counts)
+
+    def unknown_ids_text(self, limit: int = 10) -> str:
+        """Return the ``limit`` most frequent unknown identifiers and the rest summed.
+
+        Form: ``0x123: 50, 0x18EBFF00x: 7, ... +12 IDs: 40 frames`` (most frequent first, ties
+        by key); bounded whatever the bus carries.
+        """
+        top = sorted(self.unknown_id_counts.items(), key=lambda kv: (-kv[1], kv[0]))
+        text = ", ".join(f"{format_frame_key(k)}: {n}" for k, n in top[:limit])
+        rest_ids = len(top) - min(limit, len(top))
+        rest_frames = self.unknown_frames - sum(n for _, n in top[:limit])
+        if rest_frames:
+            more = f"+{rest_ids}{'+' if self.unknown_untracked else ''} IDs: {rest_frames} frames"
+            text = f"{text}, {more}" if text else more
         return text
 
 
@@ -102,7 +126,8 @@ class FrameCounters:
         self.counter_repeats = 0
         self.listener_errors = 0
         self.per_id: Counter[int] = Counter()
-        self.unknown_ids: set[int] = set()
+        self.unknown_ids: dict[int, int] = {}
+        self.unknown_untracked = 0
         self._rate_base: tuple[float, dict[int, int], int] | None = None
 
     def snapshot(self) -> CounterSnapshot:
@@ -123,8 +148,20 @@ class FrameCounters:
             counter_repeats=self.counter_repeats,
             listener_errors=self.listener_errors,
             per_id=dict(self.per_id),
-            unknown_ids=frozenset(self.unknown_ids),
+            unknown_id_counts=dict(self.unknown_ids),
+            unknown_untracked=self.unknown_untracked,
         )
+
+    def count_unknown(self, key: int) -> None:
+        """Count a data frame whose frame ``key`` is not in the DBC (bounded memory)."""
+        self.unknown_frames += 1
+        count = self.unknown_ids.get(key)
+        if count is not None:
+            self.unknown_ids[key] = count + 1
+        elif len(self.unknown_ids) < UNKNOWN_ID_CAPACITY:
+            self.unknown_ids[key] = 1
+        else:
+            self.unknown_untracked += 1
 
     def rates(self, now: float) -> tuple[float, dict[int, float]]:
         """Return ``(total [frames/s], {frame key: frames/s})`` since the previous call.

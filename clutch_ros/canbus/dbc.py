@@ -37,17 +37,8 @@ from clutch_ros.canbus.errors import DbcError, EncodeError, FrameDecodeError
 from clutch_ros.errors import ConfigError
 
 __all__ = [
-    "CAN_EFF_FLAG",
-    "UNIT_TO_SI",
-    "FrameSpec",
-    "RigDatabase",
-    "SignalSpec",
-    "PumpRequestCodec",
-    "counter_gap",
-    "crc8_sae_j1850",
-    "default_dbc_path",
-    "format_frame_key",
-    "frame_key",
+    "CAN_EFF_FLAG", "UNIT_TO_SI", "FrameSpec", "RigDatabase", "SignalSpec", "PumpRequestCodec",
+    "counter_gap", "crc8_sae_j1850", "default_dbc_path", "format_frame_key", "frame_key",
 ]
 
 #: Flag or-ed into a frame key for 29-bit identifiers (the SocketCAN ``CAN_EFF_FLAG``).
@@ -195,6 +186,7 @@ class RigDatabase:
         self._by_name: dict[str, FrameSpec] = {}
         self._messages: dict[int, cantools.database.can.Message] = {}
         self._factors: dict[int, tuple[tuple[str, float], ...]] = {}
+        self._ranges: dict[int, tuple[tuple[str, float, float], ...]] = {}
         self._signals: dict[str, SignalSpec] = {}
         for message in self._db.messages:
             spec = self._make_spec(message)
@@ -206,6 +198,12 @@ class RigDatabase:
             )
             for sig in spec.signals:
                 self._signals[sig.name] = sig
+            # [min, max] in SI, widened by half a resolution step against rounding; a DBC
+            # range of [0|0] means "none"
+            self._ranges[spec.key] = tuple(
+                (sig.name, sig.minimum - 0.5 * sig.resolution, sig.maximum + 0.5 * sig.resolution)
+                for sig in spec.signals if sig.minimum is not None and sig.maximum is not None
+                and not sig.minimum == sig.maximum == 0.0)
 
     def _make_spec(self, message: cantools.database.can.Message) -> FrameSpec:
         signals = []
@@ -296,6 +294,7 @@ class RigDatabase:
         data: bytes | bytearray,
         is_extended: bool = False,
         check_e2e: bool = True,
+        check_range: bool = True,
     ) -> dict[str, float | int]:
         """Decode a payload of a known frame into ``{signal: SI value}``.
 
@@ -303,7 +302,9 @@ class RigDatabase:
         integers (choices are not converted to strings). Raises :class:`FrameDecodeError`
         with ``reason`` ``"unknown"`` (id not in the DBC), ``"dlc"`` (length differs from
         the DBC), ``"checksum"`` (E2E checksum wrong; not checked when ``check_e2e`` is
-        False) or ``"payload"``.
+        False), ``"payload"`` or ``"range"`` (a value outside its signal's DBC range, e.g. a
+        lamella temperature of -326 degC for a signal defined on -40..320; not checked when
+        ``check_range`` is False; the error carries the decoded ``values``).
         """
         key = frame_key(arbitration_id, is_extended)
         spec = self._by_key.get(key)
@@ -328,6 +329,11 @@ class RigDatabase:
         out: dict[str, float | int] = dict(values)  # type: ignore[arg-type]
         for name, factor in self._factors[key]:
             out[name] = out[name] * factor
+        bad = check_range and tuple(n for n, lo, hi in self._ranges[key] if not lo <= out[n] <= hi)
+        if bad:
+            text = ", ".join(f"{n} = {out[n]:g}" for n in bad)
+            raise FrameDecodeError(f"{spec.name}: {text} outside the DBC range", "range",
+                                   values=out, signals=bad)
         return out
 
     def decode_message(self, msg: can.Message) -> tuple[FrameSpec, dict[str, float | int]]:
@@ -486,8 +492,8 @@ class PumpRequestCodec:
             data = bytes(frame.data)
         else:
             data = bytes(frame)
-        values = self.db.decode(
-            self.spec.frame_id, data, self.spec.is_extended, check_e2e=False
+        values = self.db.decode(  # the receiver judges checksum and range itself
+            self.spec.frame_id, data, self.spec.is_extended, check_e2e=False, check_range=False
         )
         checksum_ok = crc8_sae_j1850(data[1:]) == data[0]
         assert self.spec.counter_signal is not None

@@ -45,13 +45,17 @@ class FrameDecodeError(CanError, DataError):
     """A frame with a known identifier cannot be decoded.
 
     ``reason`` is one of ``"dlc"`` (wrong data length), ``"checksum"`` (E2E checksum wrong),
-    ``"payload"`` (cantools could not decode the payload) or ``"unknown"`` (identifier not
-    in the database).
+    ``"payload"`` (cantools could not decode the payload), ``"range"`` (a signal outside its
+    DBC range; ``values`` then holds the decoded SI values, ``signals`` the names out of range)
+    or ``"unknown"`` (identifier not in the database).
     """
 
-    def __init__(self, message: str, reason: str) -> None:
+    def __init__(self, message: str, reason: str, values: dict | None = None,
+                 signals: tuple[str, ...] = ()) -> None:
         super().__init__(message)
         self.reason = reason
+        self.values = values
+        self.signals = signals
 
 
 class BusConfigError(CanError, ConfigError):

@@ -5,9 +5,21 @@
 ``[0, max_pressure]`` with a valid rolling counter and checksum, and the returned ``reason``
 says why the request differs from the command.
 
-Use: call :meth:`PumpCommandGate.submit` for each PressureCommand and
-:meth:`PumpCommandGate.tick` every PumpRequest cycle (10 ms); send the returned frame each
-time. Time comes from the ``clock`` passed in (seconds, monotonic), never from the system.
+Use: call :meth:`PumpCommandGate.submit` for each PressureCommand and send the frame it
+returns, if any; call :meth:`PumpCommandGate.tick` every PumpRequest cycle (the DBC cycle,
+10 ms) and send its frame. Frames leave at the cycle (the latest admitted command each period)
+plus at most one immediate frame per period when the request changes, so a publisher at any
+rate never makes more than two frames per period and never a backlog.
+
+Admission: a command carries the stamp of its header [s] in the command time base
+(``stamp_clock``: the node's clock, so simulated time is honoured). It is refused, counted in
+:attr:`PumpCommandGate.refused` by reason, and does not feed the watchdog when it is older
+than ``watchdog_timeout`` (``"stale"``), further ahead than ``future_tolerance``
+(``"future"``), older than the last admitted command (``"out_of_order"``) or unstamped
+(``"unstamped"``, unless ``accept_unstamped``). A node may refuse for reasons of its own
+(:meth:`PumpCommandGate.refuse`, e.g. a command from a publisher that is not the configured
+source). Time for the watchdog and the rate limit comes from the ``clock`` passed in
+(seconds, monotonic), never from the system.
 
 Fail-safe zeroing (no command yet, watchdog, non-finite or negative command) goes to 0 bar at
 once; the rate limits apply to ordinary set-point changes only. Zero pressure opens the clutch,
@@ -17,6 +29,8 @@ the safe state.
 from __future__ import annotations
 
 import math
+import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -27,7 +41,10 @@ from clutch_ros.canbus.dbc import PumpRequestCodec
 from clutch_ros.canbus.errors import EncodeError
 from clutch_ros.errors import ConfigError
 
-__all__ = ["GateOutput", "PumpCommandGate", "PumpGateConfig"]
+__all__ = ["REFUSAL_REASONS", "GateOutput", "PumpCommandGate", "PumpGateConfig"]
+
+#: Why :meth:`PumpCommandGate.submit` refuses a command (``"source"``: refused by the node).
+REFUSAL_REASONS = ("stale", "future", "out_of_order", "unstamped", "source")
 
 _BAR = 1e5  # [Pa]
 
@@ -38,14 +55,18 @@ class PumpGateConfig:
 
     ``max_pressure`` [Pa] (at most the DBC maximum, 60 bar); ``rate_limit_up`` and
     ``rate_limit_down`` [Pa/s] (``math.inf`` = unlimited); ``watchdog_timeout`` [s]: no
-    command for longer than this sends 0 bar. Raises
-    :class:`clutch_ros.errors.ConfigError` when a value is out of range.
+    admitted command for longer than this sends 0 bar, and a command whose stamp is older
+    than this is refused; ``future_tolerance`` [s]: a stamp further ahead of the command
+    clock than this is refused; ``accept_unstamped``: admit commands without a stamp.
+    Raises :class:`clutch_ros.errors.ConfigError` when a value is out of range.
     """
 
     max_pressure: float = 40.0 * _BAR
     rate_limit_up: float = 200.0 * _BAR
     rate_limit_down: float = math.inf
     watchdog_timeout: float = 0.1
+    future_tolerance: float = 0.05
+    accept_unstamped: bool = False
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_pressure) and self.max_pressure > 0.0):
@@ -57,6 +78,10 @@ class PumpGateConfig:
         if not (math.isfinite(self.watchdog_timeout) and self.watchdog_timeout > 0.0):
             raise ConfigError(
                 f"watchdog_timeout must be > 0 s, got {self.watchdog_timeout!r}"
+            )
+        if not (math.isfinite(self.future_tolerance) and self.future_tolerance >= 0.0):
+            raise ConfigError(
+                f"future_tolerance must be >= 0 s, got {self.future_tolerance!r}"
             )
 
 
@@ -76,8 +101,10 @@ class GateOutput(NamedTuple):
 class PumpCommandGate:
     """PressureCommand -> PumpRequest frames, never outside limits (see module docstring).
 
-    ``clock`` returns the current time [s] (monotonic); ``codec`` defaults to a
-    :class:`PumpRequestCodec` on the default DBC with the configured ``max_pressure``.
+    ``clock`` returns the current time [s] (monotonic); ``stamp_clock`` returns the current
+    time [s] in the time base of command stamps (default: ``time.time``; a node passes its
+    ROS clock); ``codec`` defaults to a :class:`PumpRequestCodec` on the default DBC with the
+    configured ``max_pressure``.
     """
 
     def __init__(
@@ -85,6 +112,7 @@ class PumpCommandGate:
         clock: Callable[[], float],
         config: PumpGateConfig | None = None,
         codec: PumpRequestCodec | None = None,
+        stamp_clock: Callable[[], float] = time.time,
     ) -> None:
         self.config = config if config is not None else PumpGateConfig()
         self.codec = (
@@ -99,6 +127,11 @@ class PumpCommandGate:
         if self.max_pressure > self.config.max_pressure:
             self.max_pressure -= self.codec.resolution
         self._clock = clock
+        self._stamp_clock = stamp_clock
+        self._last_stamp: float | None = None  # newest admitted stamp (out-of-order check)
+        self._command_stamp: float | None = None  # stamp of the last admitted command
+        self._immediate_used = False  # an immediate frame went out since the last tick
+        self._sent: tuple[float, str] | None = None  # (target, reason) of the last frame
         self._counter = 0
         self._target = 0.0
         self._target_reason = "no command yet"
@@ -110,24 +143,37 @@ class PumpCommandGate:
         self._watchdog_tripped = False
         #: number of times the watchdog zeroed the request (once per command gap)
         self.watchdog_trips = 0
-        #: commands received / commands replaced by 0 bar (NaN, inf, negative)
+        #: commands admitted / admitted commands replaced by 0 bar (NaN, inf, negative)
         self.commands = 0
         self.rejected_commands = 0
-        #: frames produced
+        #: commands refused, by reason (:data:`REFUSAL_REASONS`), and the last refusal's text
+        self.refused: Counter[str] = Counter()
+        self.last_refusal = ""
+        #: frames produced / of them, immediate frames on a change (between ticks)
         self.frames = 0
+        self.immediate_frames = 0
 
     @property
     def applied_pressure(self) -> float:
         """Pressure [Pa] requested by the last frame."""
         return self._applied
 
-    def submit(self, pressure: float) -> GateOutput:
-        """Take a commanded ``pressure`` [Pa] and return the frame to send now.
+    def submit(self, pressure: float, stamp: float | None = None) -> GateOutput | None:
+        """Take a commanded ``pressure`` [Pa] stamped ``stamp`` [s]; return a frame or None.
 
-        NaN/inf/negative (or not a number) -> 0 bar with a reason; above the maximum ->
-        clamped; the step towards it is rate limited.
+        Refused commands (see the module docstring) return None and change nothing but the
+        counts. An admitted command becomes the target: NaN/inf/negative (or not a number) ->
+        0 bar with a reason; above the maximum -> clamped; the step towards it is rate
+        limited. The frame is returned at once when the target changed and no immediate frame
+        went out since the last :meth:`tick`; otherwise None (the next tick sends it).
         """
+        refusal = self._admission(stamp)
+        if refusal is not None:
+            return self.refuse(*refusal)
         now = float(self._clock())
+        if stamp is not None:
+            self._last_stamp = stamp
+        self._command_stamp = stamp
         self.commands += 1
         self._last_command = now
         self._watchdog_tripped = False
@@ -151,13 +197,52 @@ class PumpCommandGate:
             )
         else:
             self._set_target(value, "", fail_safe=False)
+        if self._immediate_used or self._sent == (self._target, self._target_reason):
+            return None
+        self._immediate_used = True
+        self.immediate_frames += 1
         return self._output(now)
 
+    def _admission(self, stamp: float | None) -> tuple[str, str] | None:
+        """Return ``(reason, text)`` when a command stamped ``stamp`` [s] is refused."""
+        if stamp is None:
+            if self.config.accept_unstamped:
+                return None
+            return "unstamped", "command refused: no stamp"
+        if not math.isfinite(stamp):
+            return "unstamped", f"command refused: stamp {stamp} is not finite"
+        now = float(self._stamp_clock())
+        age = now - stamp
+        if age > self.config.watchdog_timeout:
+            return "stale", (f"command refused: stamp {age:.3f} s old (more than "
+                             f"{self.config.watchdog_timeout:.3f} s)")
+        if -age > self.config.future_tolerance:
+            return "future", (f"command refused: stamp {-age:.3f} s ahead (more than "
+                              f"{self.config.future_tolerance:.3f} s)")
+        if self._last_stamp is not None and stamp < self._last_stamp:
+            return "out_of_order", (f"command refused: stamp {self._last_stamp - stamp:.6f} s "
+                                    "older than the last admitted one")
+        return None
+
+    def refuse(self, reason: str, text: str) -> None:
+        """Count a refused command (``reason`` for the counts, ``text`` for people); None."""
+        self.refused[reason] += 1
+        self.last_refusal = text
+        return None
+
     def tick(self) -> GateOutput:
-        """Return the periodic frame (call every PumpRequest cycle); checks the watchdog."""
+        """Return the periodic frame (call every PumpRequest cycle); checks the watchdog.
+
+        The watchdog trips when no command was admitted for ``watchdog_timeout`` on
+        ``clock``, or the last admitted command's stamp is older than that on
+        ``stamp_clock`` (a command processed late still expires on time).
+        """
         now = float(self._clock())
+        self._immediate_used = False
         if self._last_command is not None and not self._watchdog_tripped:
             silence = now - self._last_command
+            if self._command_stamp is not None:  # a late-processed command expires on time
+                silence = max(silence, float(self._stamp_clock()) - self._command_stamp)
             if silence > self.config.watchdog_timeout:
                 self._watchdog_tripped = True
                 self.watchdog_trips += 1
@@ -168,6 +253,12 @@ class PumpCommandGate:
                     fail_safe=True,
                 )
         return self._output(now)
+
+    def zero(self, reason: str) -> GateOutput:
+        """Return a 0 bar frame at once (fail-safe, e.g. ``"shutdown"``) and keep 0 bar."""
+        self._set_target(0.0, f"{reason} -> 0 bar", fail_safe=True)
+        self._last_command = None  # no watchdog report to follow: 0 bar already
+        return self._output(float(self._clock()))
 
     def _set_target(self, target: float, reason: str, fail_safe: bool) -> None:
         self._target = target
@@ -206,6 +297,7 @@ class PumpCommandGate:
             frame = self.codec.encode(0.0, counter, timestamp=now)
             reasons.append(f"encode failed ({err}) -> 0 bar")
         self._applied = applied
+        self._sent = (self._target, self._target_reason)
         self.frames += 1
         reason = "; ".join(reasons)
         return GateOutput(frame, applied, bool(reason), reason)

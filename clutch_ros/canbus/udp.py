@@ -9,6 +9,12 @@ from a CAN adapter in two ways that matter to a node:
 * on Linux a socket bound to the port hears every group joined on that port, and its default
   receive buffer holds only ~20 ms of traffic at 10,000 frames/s: :func:`tune_udp_multicast`
   (applied by :func:`~clutch_ros.canbus.bus.open_bus`) fixes both.
+
+A datagram that is no CAN frame (not msgpack, an 11-bit identifier above 0x7FF, a DLC that
+differs from the data length, ...) makes python-can's ``recv`` raise ``CanOperationError``
+although the socket is fine and the datagram is already consumed. :func:`malformed_reason`
+tells such a per-datagram error from a transport failure, so the bus counts and drops it
+instead of taking the link down.
 """
 
 from __future__ import annotations
@@ -22,7 +28,14 @@ from collections.abc import Callable
 
 import can
 
-__all__ = ["ECHOING_INTERFACES", "UDP_RECEIVE_BUFFER", "EchoFilter", "tune_udp_multicast"]
+__all__ = [
+    "ECHOING_INTERFACES",
+    "MALFORMED_REASONS",
+    "UDP_RECEIVE_BUFFER",
+    "EchoFilter",
+    "malformed_reason",
+    "tune_udp_multicast",
+]
 
 #: Receive buffer [bytes] requested for udp_multicast sockets (capped by net.core.rmem_max).
 UDP_RECEIVE_BUFFER = 4 * 1024 * 1024
@@ -60,6 +73,45 @@ def tune_udp_multicast(bus: can.BusABC, receive_buffer: int = UDP_RECEIVE_BUFFER
     except OSError:
         return False
     return True
+
+#: The reasons :func:`malformed_reason` returns (a fixed set: bounded diagnostics).
+MALFORMED_REASONS = ("not_msgpack", "invalid_frame", "not_a_frame")
+
+
+def malformed_reason(err: BaseException) -> str | None:
+    """Return why a received datagram was no valid frame, or None for a transport failure.
+
+    python-can wraps both kinds in ``can.CanOperationError``; the cause tells them apart. A
+    socket or driver failure is caused by an ``OSError`` or a python-can error (or has no
+    cause); a bad datagram is caused by the unpacking (``"not_msgpack"``: msgpack could not
+    parse it), by :class:`can.Message`'s check (``"invalid_frame"``: ``ValueError``, e.g.
+    an 11-bit identifier above 0x7FF or a DLC that differs from the data length) or by
+    fields that do not make a frame (``"not_a_frame"``: msgpack held something else).
+    """
+    if not isinstance(err, can.CanOperationError):
+        return None
+    cause = err.__cause__
+    if cause is None or isinstance(cause, (OSError, can.CanError)):
+        return None
+    if _raised_in_can_message(cause):  # can.Message(check=True) rejected the fields
+        return "invalid_frame" if isinstance(cause, ValueError) else "not_a_frame"
+    if isinstance(cause, ValueError) or type(cause).__module__.split(".")[0] == "msgpack":
+        return "not_msgpack"  # msgpack's C unpacker raises ValueError subclasses
+    return "not_a_frame"
+
+
+def _raised_in_can_message(exc: BaseException) -> bool:
+    """Return True when ``exc`` was raised inside ``can/message.py`` (its innermost frame)."""
+    tb = exc.__traceback__
+    if tb is None:
+        return False
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb.tb_frame.f_code.co_filename == _MESSAGE_FILE
+
+
+_MESSAGE_FILE = can.message.__file__
+
 
 def _signature(msg: can.Message) -> tuple:
     return (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.is_error_frame,

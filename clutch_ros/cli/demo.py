@@ -57,6 +57,11 @@ def add_parser(sub) -> None:
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
                    help="storage plugin of the bags written (default: mcap)")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
+    p.add_argument("--dashboard", action="store_true",
+                   help="also run the dashboard node: watch the run live in Foxglove at "
+                        "ws://127.0.0.1:PORT (README.md)")
+    p.add_argument("--dashboard-port", type=int, default=8765,
+                   help="port of --dashboard (default 8765)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.set_defaults(func=run)
 
@@ -70,6 +75,8 @@ def run(args) -> int:
     """Run the demo; return 0 (summary printed) or raise ClutchError."""
     if not 1.0 <= args.rate <= 2000.0:
         raise ClutchError(f"--rate must be within 1..2000 Hz, got {args.rate}")
+    if not 0 <= args.dashboard_port <= 65535:
+        raise ClutchError(f"--dashboard-port {args.dashboard_port} is not a TCP port")
     est_file = preset_path(args.params)
     rig_file = preset_path(args.rig_params)
     params = load_params(est_file)
@@ -97,6 +104,10 @@ def run(args) -> int:
         "estimator": ["--params-file", str(est_file)],
         "controller": ["--params-file", str(est_file)],
     }
+    if args.dashboard:
+        specs["dashboard"] = ros_param_args({"dashboard.port": args.dashboard_port})
+        _say(f"clutch demo: dashboard at ws://127.0.0.1:{args.dashboard_port} (Foxglove: open "
+             "connection -> Foxglove WebSocket; layout params/clutch_dashboard.json)")
     procs = []
     try:
         for name, node_args in specs.items():
@@ -106,6 +117,8 @@ def run(args) -> int:
         for proc in reversed(procs):
             proc.stop()
     summary = _summarise(out, profile, driver, written, rated, args)
+    if args.dashboard:
+        summary["dashboard"] = f"ws://127.0.0.1:{args.dashboard_port}"
     if args.json:
 
         emit_json(summary)
@@ -154,6 +167,7 @@ def _drive(profile, procs, out: Path, args):
             executor.spin_once(timeout_sec=0.01)
         _say("")
     finally:
+        recorder.drain(executor, quiet=0.3, limit=3.0)  # what DDS still queues: into the bag
         executor.shutdown()
         written = recorder.close()
         recorder.destroy_node()

@@ -1,6 +1,6 @@
 """``clutch import FILE... -o BAG``: rig CSV or Vector ASC/BLF CAN logs -> RigState bags.
 
-CSV: the DESIGN.md columns (units in the header names, converted to SI), one message per row.
+CSV: the README.md columns (units in the header names, converted to SI), one message per row.
 CAN logs (any python-can log format, picked by suffix: .asc, .blf, .log, .trc, .csv of
 python-can ...): decoded through ``params/rig.dbc`` by the same path as the live bridge, one
 RigState per ``--period`` of log time in which a frame arrived (a sample repeating the last
@@ -17,7 +17,9 @@ import sys
 import time
 from pathlib import Path
 
+from clutch_ros.bag.channel_map import load_map
 from clutch_ros.bag.csv_import import import_csv
+from clutch_ros.bag.mapped_import import MDF_SUFFIXES, import_mapped
 from clutch_ros.bag.typestore import CAN_FRAME, RIG_STATE, can_frame_msg, rig_state_msg
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.canbus import LogSource, RigDatabase, RigStateAssembler
@@ -46,6 +48,9 @@ def add_parser(sub) -> None:
     p.add_argument("--dbc", help="CAN logs: DBC file (default: the package's rig.dbc)")
     p.add_argument("--frames", action="store_true",
                    help="CAN logs: also store every frame as CanFrame on /can_frames")
+    p.add_argument("--map", metavar="MAP.yaml", help="channel map: which MDF4 channel or CSV "
+                   "column feeds each RigState field, with units (required for .mf4 files; "
+                   "see clutch_ros/bag/channel_map.py)")
     p.add_argument("--json", action="store_true", help="print a JSON list of imports")
     p.set_defaults(func=run)
 
@@ -105,7 +110,14 @@ def run(args) -> int:
             "csv" if path.suffix.lower() in CSV_SUFFIXES else "can")
         progress = _Progress(path.name)
         try:
-            if kind == "csv":
+            if args.map or path.suffix.lower() in MDF_SUFFIXES:
+                if not args.map:
+                    raise ClutchError(f"{path}: an MDF file needs --map MAP.yaml (which "
+                                      "channel feeds which RigState field)")
+                n, span = import_mapped(path, target, load_map(args.map), storage=args.storage)
+                results.append({"source": str(path), "bag": str(target), "format": "mapped",
+                                "messages": n, "duration_s": span, "ignored_columns": []})
+            elif kind == "csv":
                 s = import_csv(path, target, storage=args.storage, progress=progress)
                 results.append({"source": str(path), "bag": str(target), "format": "csv",
                                 "messages": s.messages, "duration_s": s.duration_s,

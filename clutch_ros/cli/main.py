@@ -25,6 +25,8 @@ SUBCOMMANDS = {
     "calibrate": "calibrate",
     "demo": "demo",
     "closed-loop": "closed_loop_cmd",
+    "dashboard": "dashboard",
+    "up": "up",
 }
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from clutch_ros.errors import ClutchError
 
-__all__ = ["NodeProcess", "isolated_ros_env", "ros_param_args"]
+__all__ = ["NodeProcess", "isolated_ros_env", "node_env", "ros_param_args"]
 
 
 def ros_param_args(params: dict) -> list[str]:
@@ -34,9 +34,15 @@ def ros_param_args(params: dict) -> list[str]:
 
 def isolated_ros_env(domain_id: int) -> dict:
     """Environment for child nodes: loopback discovery and a private ROS domain."""
-    env = dict(os.environ)
+    env = node_env()
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env["ROS_DOMAIN_ID"] = str(domain_id)
+    return env
+
+
+def node_env() -> dict:
+    """Environment for child nodes in this process's ROS graph (domain, discovery as set)."""
+    env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
     env["RCUTILS_COLORIZED_OUTPUT"] = "0"
     source_root = str(Path(__file__).resolve().parents[2])
@@ -47,7 +53,12 @@ def isolated_ros_env(domain_id: int) -> dict:
 class NodeProcess:
     """One node in its own process; ``stop()`` shuts it down cleanly and returns its code."""
 
-    def __init__(self, name: str, args: list[str], env: dict, log_dir: Path):
+    def __init__(self, name: str, args: list[str], env: dict, log_dir: Path,
+                 executable: str | None = None):
+        """Start ``clutch_ros.nodes.<executable>`` (default: ``name``), logging to log_dir.
+
+        ``name`` names the log file (``<name>.log``) and the node in messages.
+        """
         self.name = name
         log_dir.mkdir(parents=True, exist_ok=True)
         self.log_path = log_dir / f"{name}.log"
@@ -56,13 +67,23 @@ class NodeProcess:
             restart += 1
             self.log_path = log_dir / f"{name}.{restart}.log"
         self._log = open(self.log_path, "w")  # noqa: SIM115 - closed in stop()
-        cmd = [sys.executable, "-m", f"clutch_ros.nodes.{name}", *args]
+        cmd = [sys.executable, "-m", f"clutch_ros.nodes.{executable or name}", *args]
         try:
             self._proc = subprocess.Popen(cmd, env=env, stdout=self._log,
                                           stderr=subprocess.STDOUT, start_new_session=True)
         except OSError as err:
             self._log.close()
             raise ClutchError(f"cannot start node {name}: {err}") from err
+
+    @property
+    def returncode(self) -> int | None:
+        """Exit code once the process has ended (None while it runs)."""
+        return self._proc.poll()
+
+    @property
+    def pid(self) -> int:
+        """Process id of the node."""
+        return self._proc.pid
 
     def alive(self) -> bool:
         """Return True while the process runs."""

@@ -20,9 +20,11 @@ written by ``clutch calibrate -o`` (``--calibration-file``). The work is done by
 from __future__ import annotations
 
 import sys
+import tempfile
 import time
 from pathlib import Path
 
+from clutch_ros.bag.recover import recover_bag
 from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
 from clutch_ros.cli.dispatch import emit_json
 from clutch_ros.cli.replay_adapt import AdaptiveRun, add_adapt_options, print_adaptation
@@ -55,6 +57,11 @@ def add_parser(sub) -> None:
                         "RMSE per sequence")
     add_calibration_options(p, "the report's measured P_diff (with --report)")
     add_adapt_options(p)
+    p.add_argument("--topic", help="RigState topic to replay (default: the bag's only "
+                   "RigState topic)")
+    p.add_argument("--recover", action="store_true",
+                   help="damaged MCAP bags: replay every intact chunk and report what was "
+                        "skipped (messages, time ranges) under 'recovery'")
     p.add_argument("--json", action="store_true", help="print a JSON list, one object per bag")
     p.set_defaults(func=run)
 
@@ -85,14 +92,22 @@ def run(args) -> int:
                               calibration=args.calibration,
                               fixed_calibration=calibration_from_args(args))
     results = []
-    for bag, out in zip(bags, outs):
+    scratch = tempfile.TemporaryDirectory(prefix="clutch-recover-") if args.recover else None
+    for index, (bag, out) in enumerate(zip(bags, outs)):
         start = time.perf_counter()
+        recovery = None
+        if scratch is not None:
+            recovery = recover_bag(bag, Path(scratch.name) / f"{index}")
+            _say_recovery(recovery)
+        source = Path(recovery["recovered_bag"]) if recovery else bag
         write = None
         if adaptive.enabled:
-            result, write = adaptive.replay(bag)
+            result, write = adaptive.replay(source, topic=args.topic)
         else:
-            result = replay(bag, params)
+            result = replay(source, params, topic=args.topic)
         summary = result.summary
+        if recovery is not None:
+            summary.update(bag=str(bag), recovery=recovery)
         seconds = time.perf_counter() - start
         summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
         if out is not None:
@@ -104,6 +119,8 @@ def run(args) -> int:
             summary["plots"] = report.add(result)
         results.append(summary)
         del result  # the report keeps what it needs; the next bag may be large
+    if scratch is not None:
+        scratch.cleanup()
     if report is not None:
         report.finish(results)
     saved = adaptive.finish()
@@ -128,6 +145,18 @@ def run(args) -> int:
             plots = {p for r in results for p in r["plots"]}
             sys.stdout.write(f"report: {len(plots)} PNG files in {args.report}\n")
     return 0
+
+
+def _say_recovery(rep: dict) -> None:
+    """One stderr line per skipped region of a recovered bag, and the missing counts."""
+    for s in rep["skipped"]:
+        span = "" if s["start_s"] is None else f", messages {s['start_s']:.3f}..{s['end_s']:.3f} s"
+        count = "" if s["messages"] is None else f", {s['messages']} messages"
+        sys.stderr.write(f"clutch replay: {rep['bag']}: skipped {s['bytes']} bytes at offset "
+                         f"{s['offset']} ({s['reason']}{count}{span})\n")
+    if rep["missing"]:
+        sys.stderr.write(f"clutch replay: {rep['bag']}: recovered {rep['recovered']}, missing "
+                         f"{rep['missing']} of the declared counts\n")
 
 
 def _outputs(bags, output):

@@ -64,9 +64,10 @@ class AdaptiveRun:
                 raise ClutchError(f"--forgetting-time: {err}") from None
             self.estimator = AdaptiveEstimator(params, settings)
 
-    def replay(self, bag):
+    def replay(self, bag, topic=None):
         """Replay one bag adaptively; return ``(ReplayResult, writer(out, storage))``."""
-        run = adaptive_replay([bag], self.estimator.base_params, estimator=self.estimator)[0]
+        run = adaptive_replay([bag], self.estimator.base_params, estimator=self.estimator,
+                              topic=topic)[0]
         self.bags.append(Path(bag).name)
 
         def write(out, storage):

@@ -3,14 +3,23 @@
 Messages are published exactly as recorded (raw CDR bytes, header stamps untouched) at the
 recorded timing divided by ``player.rate``, on the recorded topic names made relative (so
 ``-r __ns:=/rig1`` plays into a namespace). ``/clock`` carries the bag time, so nodes started
-with ``use_sim_time:=true`` run on the recording's clock exactly as on the rig. ``rig_state``
-is offered with sensor-data QoS, every other topic reliable. ``player.topics`` selects topics
+with ``use_sim_time:=true`` run on the recording's clock exactly as on the rig. Every topic is
+offered reliable (REP 2003; depth 200), so reliable and sensor-data subscribers both receive
+it. ``player.start_offset`` skips the bag's first seconds (each pass). ``player.topics``
+selects topics
 (recorded names, with or without the leading slash; a name the bag lacks is an error).
 ``player.wait_for_subscribers`` holds playback until every played topic (and ``/clock``)
 has that many subscribers, so no early message is published into the void. With
 ``player.loop`` the bag repeats (the clock restarts, so sim-time nodes see time jump back;
 the estimator re-initialises on the out-of-order stamp). Without it the node exits when the
 bag is done (``player.exit_when_done``).
+
+Live control: ``player.rate``, ``player.loop``, ``player.start_offset`` (from the next pass),
+``player.clock_period`` and ``player.exit_when_done`` apply at once when set; a new rate
+continues from the current bag time. The service ``~/set_paused``
+(``clutch_msgs/srv/SetPaused``) pauses and resumes: while paused only ``/clock`` is published,
+holding the bag time of the pause. The other parameters are read-only (their descriptions say
+why).
 
 The bag is checked on open (metadata.yaml against the storage) and every message is decoded
 before it is published, so a corrupt bag is never played as garbage: playback stops with one
@@ -23,9 +32,12 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import threading
 import time
 
+from clutch_msgs.srv import SetPaused
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
@@ -33,32 +45,43 @@ from clutch_ros.bag.diagnose import blame_file
 from clutch_ros.bag.errors import BagCorruptError
 from clutch_ros.bag.reader import BagReader
 from clutch_ros.nodes.common import (
+    HARDWARE_ID_PARAM,
     ParamSpec,
     declare_params,
     reliable_qos,
     run_node,
     sec_to_stamp,
-    sensor_qos,
 )
 
 NAME = "bag_player"
 PARAMS = [
-    ParamSpec("player.bag", "", "bag directory (or storage file) to play; required"),
-    ParamSpec("player.rate", 1.0, "playback speed factor (2 = twice real time)", "1",
-              0.01, 1000.0),
-    ParamSpec("player.loop", False, "repeat the bag forever"),
-    ParamSpec("player.topics", [""], "topics to play (recorded names); empty: all"),
-    ParamSpec("player.publish_clock", True, "publish /clock with the bag time"),
-    ParamSpec("player.clock_period", 0.01, "/clock publishing period while waiting", "s",
-              0.001, 1.0),
+    ParamSpec("player.bag", "", "bag directory (or storage file) to play; required; read-only: "
+              "the bag is opened and checked at start", read_only=True),
+    ParamSpec("player.rate", 1.0, "playback speed factor (2 = twice real time); live",
+              "1", 0.01, 1000.0),
+    ParamSpec("player.start_offset", 0.0, "skip this much of the bag's beginning (each pass); "
+              "live from the next pass", "s", 0.0, 1e9),
+    ParamSpec("player.loop", False, "repeat the bag forever; live"),
+    ParamSpec("player.topics", [""], "topics to play (recorded names); empty: all; read-only: "
+              "the publishers are created at start", read_only=True),
+    ParamSpec("player.publish_clock", True, "publish /clock with the bag time; read-only: "
+              "the /clock publisher is created at start", read_only=True),
+    ParamSpec("player.clock_period", 0.01, "/clock publishing period while waiting or "
+              "paused; live", "s", 0.001, 1.0),
     ParamSpec("player.start_delay", 0.5, "wait before the first message so subscribers can "
-              "connect", "s", 0.0, 60.0),
+              "connect; read-only: used once at start", "s", 0.0, 60.0, read_only=True),
     ParamSpec("player.wait_for_subscribers", 0, "before playing, wait until every played "
-              "topic and /clock has this many subscribers (0: do not wait)", "", 0, 1000),
+              "topic and /clock has this many subscribers (0: do not wait); read-only: used "
+              "once at start", "", 0, 1000, read_only=True),
     ParamSpec("player.wait_timeout", 30.0, "give up waiting for subscribers after this "
-              "(playback then starts anyway, with a warning)", "s", 0.0, 3600.0),
-    ParamSpec("player.exit_when_done", True, "shut the node down at the end of the bag"),
+              "(playback then starts anyway, with a warning); read-only: used once at start",
+              "s", 0.0, 3600.0, read_only=True),
+    ParamSpec("player.exit_when_done", True, "shut the node down at the end of the bag; live"),
+    HARDWARE_ID_PARAM,
 ]
+#: parameters applied live (the rest are declared read-only)
+LIVE = ("player.rate", "player.start_offset", "player.loop", "player.clock_period",
+        "player.exit_when_done")
 
 
 def _msg_class(typename: str):
@@ -89,12 +112,18 @@ class BagPlayerNode(Node):
         self._types = {t: self._reader.topics[t].typename for t in self._topics}
         for topic in self._topics:
             info = self._reader.topics[topic]
-            qos = sensor_qos() if topic.endswith("rig_state") else reliable_qos()
             self._pubs[topic] = self.create_publisher(_msg_class(info.typename),
-                                                      topic.lstrip("/"), qos)
+                                                      topic.lstrip("/"), reliable_qos())
         self._clock_pub = (self.create_publisher(Clock, "/clock", 10)
                            if cfg["player.publish_clock"] else None)
         self.played = 0
+        self._lock = threading.Lock()
+        self._paused = False
+        self._bag_ns = None  # bag time of the last published message [ns]
+        self._anchor = None  # (wall [s], bag [ns]) the timing counts from; None: re-anchor
+        self._resume = threading.Event()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.create_service(SetPaused, "~/set_paused", self._on_set_paused)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._play, name="bag_player", daemon=True)
         self._thread.start()
@@ -143,8 +172,12 @@ class BagPlayerNode(Node):
             self._stop.wait(cfg["player.start_delay"])
             start = time.monotonic()
             while not self._stop.is_set():
-                self._play_once(cfg["player.rate"], cfg["player.clock_period"])
+                before = self.played
+                self._play_once()
                 if not cfg["player.loop"]:
+                    break
+                if self.played == before:  # e.g. start_offset past the end: do not spin
+                    self.get_logger().warning("a pass published nothing; loop stopped")
                     break
             wall = time.monotonic() - start
         except Exception as err:  # noqa: BLE001 - a corrupt bag is reported, not a crash
@@ -172,27 +205,80 @@ class BagPlayerNode(Node):
                                   f"message {self.played + 1} on {topic} at {bag_ns} ns cannot "
                                   f"be decoded as {typename}: {err}") from err
 
-    def _play_once(self, rate: float, clock_period: float) -> None:
-        start_wall = time.monotonic()
-        start_bag = None
-        for topic, bag_ns, data in self._reader.messages(self._topics, raw=True):
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        """Apply the live parameters (ranges checked by ROS); a new rate re-anchors timing."""
+        for p in params:
+            if p.name not in LIVE and p.name != "use_sim_time":
+                return SetParametersResult(successful=False, reason=f"{p.name} is read-only")
+        with self._lock:
+            for p in params:
+                if p.name in LIVE:
+                    self._cfg[p.name] = p.value
+                if p.name == "player.rate":
+                    self._anchor = None  # continue from the current bag time at the new rate
+        self._resume.set()  # wake a waiting playback thread so the change applies now
+        return SetParametersResult(successful=True)
+
+    def _on_set_paused(self, request, response):
+        """Service ``~/set_paused``: pause (True) or resume (False) playback."""
+        with self._lock:
+            if self._paused != request.paused:
+                self._paused = request.paused
+                self._anchor = None
+                self.get_logger().info("paused" if request.paused else "resumed")
+            response.paused = self._paused
+            response.bag_time = (self._bag_ns or 0) * 1e-9
+        self._resume.set()
+        return response
+
+    def _due(self, bag_ns: int) -> float:
+        """Return the wall time [s] (monotonic) at which ``bag_ns`` is due; under the lock."""
+        if self._anchor is None:
+            start = self._bag_ns if self._bag_ns is not None and self._bag_ns <= bag_ns \
+                else bag_ns
+            self._anchor = (time.monotonic(), start)
+        wall, bag = self._anchor
+        return wall + (bag_ns - bag) * 1e-9 / self._cfg["player.rate"]
+
+    def _wait_until_due(self, bag_ns: int) -> bool:
+        """Wait (publishing /clock) until ``bag_ns`` is due and not paused; False: stopped."""
+        while not self._stop.is_set():
+            with self._lock:
+                paused = self._paused
+                wait = math.inf if paused else self._due(bag_ns) - time.monotonic()
+                held = self._bag_ns if self._bag_ns is not None else bag_ns
+                now_bag = held if paused else self._anchor[1] + int(
+                    (time.monotonic() - self._anchor[0]) * self._cfg["player.rate"] * 1e9)
+                period = self._cfg["player.clock_period"]
+            if wait <= 0.0:
+                return True
+            self._publish_clock(max(min(now_bag, bag_ns), held))
+            self._resume.clear()
+            self._resume.wait(min(wait, period))
+        return False
+
+    def _play_once(self) -> None:
+        with self._lock:
+            offset = int(self._cfg["player.start_offset"] * 1e9)
+            self._anchor, self._bag_ns = None, None
+        start = self._reader.start_ns + offset if offset else None
+        for topic, bag_ns, data in self._reader.messages(self._topics, raw=True,
+                                                         start_ns=start):
             if self._stop.is_set():
                 return
             self._check(topic, bag_ns, data)  # then published as the recorded bytes
-            start_bag = bag_ns if start_bag is None else start_bag
-            due = start_wall + (bag_ns - start_bag) * 1e-9 / rate
-            while (wait := due - time.monotonic()) > 0.0:
-                self._publish_clock(start_bag + int((time.monotonic() - start_wall)
-                                                    * rate * 1e9))
-                if self._stop.wait(min(wait, clock_period)):
-                    return
+            if not self._wait_until_due(bag_ns):
+                return
             self._publish_clock(bag_ns)
             self._pubs[topic].publish(bytes(data))
+            with self._lock:
+                self._bag_ns = bag_ns
             self.played += 1
 
     def close(self) -> None:
         """Stop playback and close the bag."""
         self._stop.set()
+        self._resume.set()
         self._thread.join(timeout=2.0)
         self._reader.close()
 

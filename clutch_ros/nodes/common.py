@@ -27,6 +27,7 @@ __all__ = [
     "LogThrottle",
     "ParamSpec",
     "Diagnostics",
+    "HARDWARE_ID_PARAM",
     "declare_params",
     "help_requested",
     "make_executor",
@@ -69,6 +70,13 @@ class ParamSpec:
         return f"{self.name}{unit}: {self.description} (default {self.default!r}{rng})"
 
 
+#: The rig a node serves, for its /diagnostics hardware_id (the launch files set it).
+HARDWARE_ID_PARAM = ParamSpec(
+    "diagnostics.hardware_id", "", "hardware_id of this node's /diagnostics status: the rig "
+    "it serves (CAN interface:channel, or 'simulated rig'); empty: the node name; read-only: "
+    "fixed for the node's life", read_only=True)
+
+
 class LogThrottle:
     """Let a log call through at most once per ``period_s`` (monotonic clock).
 
@@ -91,7 +99,7 @@ class LogThrottle:
 
 
 def sensor_qos():
-    """Return the sensor-data QoS profile (best effort, shallow): used for ``rig_state``."""
+    """Return the sensor-data QoS profile (best effort, depth 5), for latest-sample readers."""
     return qos_profile_sensor_data
 
 
@@ -212,9 +220,18 @@ class Diagnostics:
     strings).
     """
 
-    def __init__(self, node, collect: Callable[[], tuple[str, str, dict]], period_s: float = 1.0):
+    def __init__(self, node, collect: Callable[[], tuple[str, str, dict]], period_s: float = 1.0,
+                 hardware_id: str = ""):
+        """Publish ``collect()`` every ``period_s`` [s].
 
+        ``hardware_id`` names the hardware the status is about (the CAN interface and
+        channel, or ``simulated rig``); empty: the node's ``diagnostics.hardware_id``
+        parameter when declared (:data:`HARDWARE_ID_PARAM`), else the node name.
+        """
         self._node = node
+        if not hardware_id and node.has_parameter(HARDWARE_ID_PARAM.name):
+            hardware_id = node.get_parameter(HARDWARE_ID_PARAM.name).value
+        self.hardware_id = hardware_id or node.get_name()
         self._collect = collect
         self._pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._timer = node.create_timer(period_s, self.publish_now)
@@ -228,7 +245,7 @@ class Diagnostics:
                         "STALE": DiagnosticStatus.STALE}[level]
         status.name = f"{self._node.get_namespace().rstrip('/')}/{self._node.get_name()}"
         status.message = message
-        status.hardware_id = self._node.get_name()
+        status.hardware_id = self.hardware_id
         status.values = [KeyValue(key=str(k), value=_fmt(v)) for k, v in values.items()]
         array = DiagnosticArray()
         array.header.stamp = self._node.get_clock().now().to_msg()

@@ -12,10 +12,19 @@ plus the estimate's dynamic ``spline_correction``; then, in this order, the over
 (never above the steady-state inverse of ``(1 + controller.overshoot_margin) x request``),
 the pressure limits and the rise/fall rate limits (rises below the pump's kick threshold).
 
-Fail-safe: a stale torque request, stale rig data or a stale/missing estimate (the estimator
-died, say) commands 0 Pa at once with ``reason`` saying which; commands resume by themselves
-when fresh data returns. Every published pressure is within the configured limits, whatever
-arrives (NaN or negative requests are treated as 0 N m and reported).
+Fail-safe: no ``torque_request`` for ``controller.request_timeout`` (0.5 s), no ``rig_state``
+for ``controller.rig_timeout`` (0.25 s) or no ``clutch_estimate`` for
+``controller.estimate_timeout`` (0.25 s), or none received yet, commands 0 Pa at once (no
+rate limit) with ``reason`` naming the input and the silent node, read from the ROS graph
+(``fail-safe: stale estimate: no clutch_estimate from /estimator for 0.31 s (> 0.25 s)``, see
+:mod:`clutch_ros.nodes.peers`); the check runs every tick (``1/controller.rate``), so 0 Pa
+follows at most one period after a timeout. Commands resume by themselves when fresh data
+returns. Every published pressure is within the configured limits, whatever arrives (NaN or
+negative requests are treated as 0 N m and reported).
+
+Parameters: every ``controller.*`` setting and every model key applies live (the next tick)
+after validation: ranges by ROS, ``min_pressure <= max_pressure`` and the model's rules here;
+a refused change names its reason and changes nothing.
 """
 
 from __future__ import annotations
@@ -25,8 +34,10 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
 from clutch_ros.config.presets import default_preset
+from clutch_ros.errors import ClutchError
 from clutch_ros.model.control import ControllerSettings, TorqueController
 from clutch_ros.nodes.common import (
+    HARDWARE_ID_PARAM,
     Diagnostics,
     LogThrottle,
     ParamSpec,
@@ -36,6 +47,7 @@ from clutch_ros.nodes.common import (
     sensor_qos,
 )
 from clutch_ros.nodes.model_params import apply_model_changes, declare_model_params
+from clutch_ros.nodes.peers import Input, PeerWatch
 
 NAME = "controller"
 PARAMS = [
@@ -63,6 +75,7 @@ PARAMS = [
               0.001, 3600.0),
     ParamSpec("controller.estimate_timeout", 0.25, "clutch_estimate older than this is stale "
               "-> 0 Pa", "s", 0.001, 3600.0),
+    HARDWARE_ID_PARAM,
 ]
 
 
@@ -75,43 +88,67 @@ class ControllerNode(Node):
 
         cfg = self._cfg = declare_params(self, PARAMS)
         params = declare_model_params(self, default_preset("flexiforce_8"))
-        self._ctl = TorqueController(params, ControllerSettings(
-            period=1.0 / cfg["controller.rate"], min_pressure=cfg["controller.min_pressure"],
-            max_pressure=cfg["controller.max_pressure"],
-            rise_rate_limit=cfg["controller.rise_rate_limit"],
-            fall_rate_limit=cfg["controller.fall_rate_limit"],
-            torque_ramp_rate=cfg["controller.torque_ramp_rate"],
-            lead_time=cfg["controller.lead_time"], lead_max_rate=cfg["controller.lead_max_rate"],
-            overshoot_margin=cfg["controller.overshoot_margin"],
-            correction_gain=cfg["controller.spline_correction_gain"]))
-        self._seen = {"torque request": None, "rig data": None, "estimate": None}
+        self._ctl = TorqueController(params, _settings(cfg))
+        self._peers = PeerWatch(self, [
+            Input("torque request", "torque_request", cfg["controller.request_timeout"],
+                  "a torque-request source"),
+            Input("rig data", "rig_state", cfg["controller.rig_timeout"], "can_bridge"),
+            Input("estimate", "clutch_estimate", cfg["controller.estimate_timeout"],
+                  "estimator")])
         self._estimate = None
         self._counts = {"commands": 0, "limited": 0, "failsafe": 0, "bad_requests": 0}
         self._last_reason = ""
         self._warn = LogThrottle(5.0)
         self._pub = self.create_publisher(PressureCommand, "pressure_command", reliable_qos())
-        # Only the newest sample of each input matters: shallow queues, so a busy moment
-        # never leaves the controller working through a backlog of old samples.
+        # QoS (README, "QoS"): pressure_command reliable, depth 200. Inputs: torque requests
+        # are commands, so reliable (depth 5: only the newest matters); rig_state and
+        # clutch_estimate are state of which only the latest sample is used: sensor-data QoS
+        # (best effort, depth 5), which matches reliable and best-effort publishers alike.
         self.create_subscription(TorqueRequest, "torque_request", self._on_request,
                                  reliable_qos(depth=5))
         self.create_subscription(RigState, "rig_state", self._on_rig, sensor_qos())
         self.create_subscription(ClutchEstimate, "clutch_estimate", self._on_estimate,
-                                 reliable_qos(depth=2))
-        self.create_timer(self._ctl.settings.period, self._tick)
+                                 sensor_qos())
+        self._timer = self.create_timer(self._ctl.settings.period, self._tick)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
 
     def _on_set_parameters(self, params):
-        """Apply model-key changes (validated by the model); controller.* need a restart."""
-        fixed = [p.name for p in params if p.name.startswith("controller.")]
-        if fixed:
-            return SetParametersResult(successful=False, reason=f"{', '.join(fixed)}: "
-                                       "controller settings apply at start; restart the node")
+        """Validate and apply controller.* and model keys at once (all or nothing).
+
+        ROS checks each value against its descriptor's range first; here the set as a whole
+        is checked (``min_pressure <= max_pressure``, the model's own rules). Accepted
+        settings apply from the next tick: a lower ``max_pressure`` also clamps the pressure
+        held now, so no later command exceeds it; a new ``rate`` restarts the timer.
+        """
+        own = {p.name: p.value for p in params if p.name.startswith("controller.")}
+        cfg = {**self._cfg, **own}
+        if cfg["controller.min_pressure"] > cfg["controller.max_pressure"]:
+            return SetParametersResult(successful=False, reason=(
+                f"controller.min_pressure {cfg['controller.min_pressure']} Pa must not exceed "
+                f"controller.max_pressure {cfg['controller.max_pressure']} Pa"))
+        try:
+            settings = _settings(cfg)
+        except ClutchError as err:
+            return SetParametersResult(successful=False, reason=str(err))
         new_params, reason = apply_model_changes(self._ctl.params, params)
         if reason:
             return SetParametersResult(successful=False, reason=reason)
         if new_params is not None:
             self._ctl.params = new_params
+        if own:
+            period_changed = settings.period != self._ctl.settings.period
+            self._cfg = cfg
+            self._ctl.settings = settings
+            self._ctl.pressure = min(max(self._ctl.pressure, settings.min_pressure),
+                                     settings.max_pressure)
+            for what, key in _TIMEOUTS.items():
+                self._peers.set_timeout(what, cfg[key])
+            if period_changed:
+                self.destroy_timer(self._timer)
+                self._timer = self.create_timer(settings.period, self._tick)
+            self.get_logger().info("controller settings changed: " + ", ".join(
+                f"{k}={v}" for k, v in sorted(own.items())))
         return SetParametersResult(successful=True)
 
     def _now(self) -> float:
@@ -119,7 +156,7 @@ class ControllerNode(Node):
 
     def _on_request(self, msg) -> None:
         now = self._now()
-        self._seen["torque request"] = now
+        self._peers.seen("torque request", now)
         warning = self._ctl.set_request(now, msg.torque)
         if warning:
             self._counts["bad_requests"] += 1
@@ -127,21 +164,14 @@ class ControllerNode(Node):
                 self.get_logger().warning(warning)
 
     def _on_rig(self, msg) -> None:
-        self._seen["rig data"] = self._now()
+        self._peers.seen("rig data", self._now())
 
     def _on_estimate(self, msg) -> None:
-        self._estimate, self._seen["estimate"] = msg, self._now()
+        self._estimate = msg
+        self._peers.seen("estimate", self._now())
 
     def _stale_reason(self, now: float) -> str:
-        timeouts = {"torque request": "controller.request_timeout",
-                    "rig data": "controller.rig_timeout", "estimate": "controller.estimate_timeout"}
-        for what, key in timeouts.items():
-            at, timeout = self._seen[what], self._cfg[key]
-            if at is None:
-                return f"no {what} received"
-            if now - at > timeout:
-                return f"stale {what} ({now - at:.3f} s > {timeout} s)"
-        return ""
+        return self._peers.silent(now)
 
     def _tick(self) -> None:
 
@@ -165,12 +195,31 @@ class ControllerNode(Node):
         self._pub.publish(msg)
 
     def _diagnose(self):
+        now = self._now()
         values = dict(self._counts, pressure_pa=self._ctl.pressure, target_nm=self._ctl.target,
-                      last_reason=self._last_reason)
-        stale = self._stale_reason(self._now())
+                      last_reason=self._last_reason, **self._peers.ages(now))
+        stale = self._stale_reason(now)
         if stale:
             return "WARN", f"fail-safe 0 Pa: {stale}", values
         return "OK", "controlling", values
+
+
+#: input -> its timeout parameter
+_TIMEOUTS = {"torque request": "controller.request_timeout", "rig data": "controller.rig_timeout",
+             "estimate": "controller.estimate_timeout"}
+
+
+def _settings(cfg: dict) -> ControllerSettings:
+    """Return the ControllerSettings of the ``controller.*`` values ``cfg`` (may raise)."""
+    return ControllerSettings(
+        period=1.0 / cfg["controller.rate"], min_pressure=cfg["controller.min_pressure"],
+        max_pressure=cfg["controller.max_pressure"],
+        rise_rate_limit=cfg["controller.rise_rate_limit"],
+        fall_rate_limit=cfg["controller.fall_rate_limit"],
+        torque_ramp_rate=cfg["controller.torque_ramp_rate"],
+        lead_time=cfg["controller.lead_time"], lead_max_rate=cfg["controller.lead_max_rate"],
+        overshoot_margin=cfg["controller.overshoot_margin"],
+        correction_gain=cfg["controller.spline_correction_gain"])
 
 
 def main(args=None) -> int:

@@ -23,6 +23,7 @@ from clutch_ros.config.params_file import load_flat
 from clutch_ros.config.presets import default_preset
 from clutch_ros.model import ClutchEstimator, SampleRejected
 from clutch_ros.nodes.common import (
+    HARDWARE_ID_PARAM,
     Diagnostics,
     LogThrottle,
     ParamSpec,
@@ -38,6 +39,7 @@ from clutch_ros.nodes.model_params import (
     declare_model_params,
     model_param_specs,
 )
+from clutch_ros.nodes.peers import Input, PeerWatch
 
 NAME = "estimator"
 PARAMS = [
@@ -45,10 +47,13 @@ PARAMS = [
               "relative to the node clock; 0 disables the check", "s", 0.0, 3600.0),
     ParamSpec("estimator.input_timeout", 0.5, "no input for longer than this is reported as "
               "stale on /diagnostics", "s", 0.001, 3600.0),
-    ParamSpec("estimator.queue_depth", 200, "rig_state subscription queue (best effort); "
-              "samples lost anyway are counted", "", 1, 100000),
+    ParamSpec("estimator.queue_depth", 200, "rig_state subscription queue (sensor-data QoS, "
+              "best effort); samples lost anyway are counted; read-only: a DDS reader's "
+              "history depth is fixed when the subscription is created", "messages", 1, 100000,
+              read_only=True),
     ParamSpec("estimator.max_gap", 1.0, "a gap between samples longer than this re-initialises "
               "the pack to equilibrium", "s", 0.001, 3600.0),
+    HARDWARE_ID_PARAM,
 ]
 
 
@@ -65,7 +70,9 @@ class EstimatorNode(Node):
         self._skipped: dict[str, int] = {}
         self._accepted = 0
         self._accepted_at_last_diag = 0
-        self._last_input = None
+        self._peers = PeerWatch(self, [Input("rig data", "rig_state",
+                                             self._cfg["estimator.input_timeout"],
+                                             "can_bridge")])
         self._last_error = ""
         self._warn = LogThrottle(5.0)
         self._pub = self.create_publisher(_msg_type(), "clutch_estimate", reliable_qos())
@@ -97,7 +104,7 @@ class EstimatorNode(Node):
     def _estimate(self, msg) -> None:
 
         now = self.get_clock().now().nanoseconds * 1e-9
-        self._last_input = now
+        self._peers.seen("rig data", now)
         stamp = stamp_to_sec(msg.header.stamp)
         max_age = self._cfg["estimator.max_sample_age"]
         if max_age > 0.0 and now - stamp > max_age:
@@ -136,6 +143,8 @@ class EstimatorNode(Node):
         self._cfg.update(own)
         if "estimator.max_gap" in own:
             self._estimator.max_gap_s = own["estimator.max_gap"]
+        if "estimator.input_timeout" in own:
+            self._peers.set_timeout("rig data", own["estimator.input_timeout"])
         return SetParametersResult(successful=True)
 
     def _diagnose(self):
@@ -145,12 +154,10 @@ class EstimatorNode(Node):
         values = {"accepted": self._accepted, "input_rate_hz": rate,
                   "spline_law": self._params.spline.law, "last_error": self._last_error}
         values.update({f"skipped_{k}": v for k, v in self._skipped.items()})
-        if self._last_input is None:
-            return "WARN", "no rig_state received yet", values
-        age = now - self._last_input
-        values["input_age_s"] = age
-        if age > self._cfg["estimator.input_timeout"]:
-            return "WARN", f"rig_state stale ({age:.2f} s)", values
+        values.update(self._peers.ages(now))
+        silent = self._peers.silent(now)
+        if silent:
+            return "WARN", silent, values
         if self._skipped:
             return "OK", f"running; skipped {sum(self._skipped.values())} samples", values
         return "OK", "running", values

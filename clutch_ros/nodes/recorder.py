@@ -1,120 +1,274 @@
-"""The ``recorder`` node: every clutch topic into a rosbag2 bag (MCAP default) via rosbags.
+"""The ``recorder`` node: clutch topics (or any topics) into rosbag2 bags via rosbags.
+
+Topics: ``recorder.topics`` (default: every clutch topic, ``pump_request`` and
+``/diagnostics``). A name outside that table is recorded with the type the ROS graph
+advertises for it, looked up at start and every second until a publisher appears (its type
+must be in the bag typestore: the clutch messages and the ROS 2 base distribution).
 
 Subscriptions are *raw* (the CDR bytes as they arrived over DDS are written unchanged, so the
 recording is lossless and costs no deserialization). Reliable topics are subscribed with
-KEEP_ALL history so a burst is queued rather than overwritten; ``rig_state`` (sensor-data QoS,
-best effort) is subscribed best-effort with a deep queue (``recorder.queue_depth``). The bag's
-timestamps are the receive times on the node clock (``use_sim_time`` gives sim time), as
-``ros2 bag record`` stores them.
+KEEP_ALL history so a burst is queued rather than overwritten; ``rig_state`` is subscribed
+best effort with a deep queue (``recorder.queue_depth``), which matches a best-effort and a
+reliable publisher alike. The bag's timestamps are the receive times on the node clock
+(``use_sim_time`` gives sim time), as ``ros2 bag record`` stores them.
+
+Splitting (``recorder.split_size`` [bytes] and/or ``recorder.split_duration`` [s], live):
+``recorder.output`` becomes a directory of complete bags ``part_0000``, ``part_0001`` ...,
+each a rosbag2 folder with its own metadata.yaml and counts; a part is closed and the next
+opened when its message bytes or its time span reach a limit (a bag folder per split, not
+rosbag2's files inside one bag, so every part replays and imports on its own). Without limits
+``recorder.output`` is the bag itself.
+
+QoS: a topic whose publishers (when the recorder subscribes, as ``ros2 bag record`` decides)
+all offer reliable is subscribed reliable with KEEP_ALL history; otherwise (or with no
+publisher yet, for ``rig_state``) best effort with a ``recorder.queue_depth`` queue.
 
 Loss accounting (:class:`clutch_ros.nodes.loss_tracker.LossTracker`): every sample carries its
 publisher's DDS sequence number, so a gap is counted exactly, per topic, as ``dropped`` and
-stored in the bag (``custom_data`` ``clutch_ros.dropped``, via ``BagWriter.mark_dropped``);
-samples a publisher sent before the first one seen here are ``missed_at_start``. Counts
-(received, written, dropped) are on ``/diagnostics`` (WARN once anything was dropped) and,
-on shutdown, in one log line ``recorder summary: {json}`` and in the bag's ``custom_data``.
-The writer verifies on close that the bag declares and stores exactly the counts received.
+stored in the bag (``custom_data`` ``clutch_ros.dropped``); samples a publisher sent before the
+first one seen here are ``missed_at_start``. The tail of a burst: on SIGINT/SIGTERM the node
+first drains what DDS still holds for it (spinning until nothing arrived for
+``recorder.drain_quiet`` or ``recorder.drain_timeout`` passed) and only then closes the bag,
+so messages queued at shutdown are written, not silently lost. Counts (received, written,
+dropped) are on ``/diagnostics`` (WARN once anything was dropped) and, on shutdown, in one log
+line ``recorder summary: {json}`` and in the bags' ``custom_data``. Exact means: with
+reliable publishers every sample is either written or counted (a KEEP_LAST publisher's
+overwritten samples show as gaps; the tail arrives by the protocol). A best-effort publisher's
+samples lost in transport *after* the last one received are invisible to any subscriber; such
+topics are marked ``best_effort`` in the summary.
 """
 
 from __future__ import annotations
 
+import importlib
 import json
+import signal
+import sys
 import time
 from pathlib import Path
 
+import rclpy
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 
 from clutch_ros.bag.writer import BagWriter
-from clutch_ros.nodes.common import Diagnostics, ParamSpec, declare_params, run_node
+from clutch_ros.errors import ClutchError
+from clutch_ros.nodes.common import (
+    HARDWARE_ID_PARAM,
+    Diagnostics,
+    ParamSpec,
+    declare_params,
+    format_help,
+    help_requested,
+    make_executor,
+)
 from clutch_ros.nodes.loss_tracker import LossTracker, format_counts
 
 NAME = "recorder"
-#: topic (relative) -> (rclpy message type path, reliable?)
+#: topic -> (ROS type "pkg/msg/Name", reliable?)
 DEFAULT_TOPICS = {
-    "rig_state": ("clutch_msgs.msg.RigState", False),
-    "clutch_estimate": ("clutch_msgs.msg.ClutchEstimate", True),
-    "torque_request": ("clutch_msgs.msg.TorqueRequest", True),
-    "pressure_command": ("clutch_msgs.msg.PressureCommand", True),
-    "can_frames": ("clutch_msgs.msg.CanFrame", True),
+    "rig_state": ("clutch_msgs/msg/RigState", False),
+    "clutch_estimate": ("clutch_msgs/msg/ClutchEstimate", True),
+    "torque_request": ("clutch_msgs/msg/TorqueRequest", True),
+    "pressure_command": ("clutch_msgs/msg/PressureCommand", True),
+    "pump_request": ("clutch_msgs/msg/PressureCommand", True),
+    "can_frames": ("clutch_msgs/msg/CanFrame", True),
+    "/diagnostics": ("diagnostic_msgs/msg/DiagnosticArray", True),
 }
 PARAMS = [
     ParamSpec("recorder.output", "", "bag directory to create (must not exist); empty: "
-              "runs/rec-YYYYmmdd-HHMMSS in the working directory"),
-    ParamSpec("recorder.storage", "mcap", "storage format", choices=("mcap", "sqlite3")),
-    ParamSpec("recorder.topics", list(DEFAULT_TOPICS), "topics to record (relative names of "
-              "the clutch topics)"),
+              "runs/rec-YYYYmmdd-HHMMSS in the working directory; with splitting, the "
+              "directory of the parts; read-only: opened at start", read_only=True),
+    ParamSpec("recorder.storage", "mcap", "storage format; read-only: the bag is opened at "
+              "start", choices=("mcap", "sqlite3"), read_only=True),
+    ParamSpec("recorder.topics", list(DEFAULT_TOPICS), "topics to record (clutch topics by "
+              "relative name, any other topic with the type the graph advertises); "
+              "read-only: subscriptions are made at start", read_only=True),
     ParamSpec("recorder.queue_depth", 10000, "subscription queue of best-effort topics "
-              "(rig_state): samples a burst may run ahead of the recorder", "messages",
-              10, 1000000),
+              "(rig_state): samples a burst may run ahead of the recorder; read-only: a DDS "
+              "reader's history depth is fixed when it is created", "messages",
+              10, 1000000, read_only=True),
+    ParamSpec("recorder.split_size", 0, "start a new part when the current one holds this "
+              "many message bytes; 0: no size split; live", "B", 0, 2**62),
+    ParamSpec("recorder.split_duration", 0.0, "start a new part when the current one spans "
+              "this long (receive time); 0: no time split; live", "s", 0.0, 1e7),
+    ParamSpec("recorder.drain_quiet", 0.5, "at shutdown, keep taking queued messages until "
+              "none arrived for this long", "s", 0.0, 60.0),
+    ParamSpec("recorder.drain_timeout", 10.0, "at shutdown, stop draining after this long",
+              "s", 0.0, 600.0),
+    HARDWARE_ID_PARAM,
 ]
+LIVE = ("recorder.split_size", "recorder.split_duration", "recorder.drain_quiet",
+        "recorder.drain_timeout")
 
 
-def _import(path: str):
-    module, _, name = path.rpartition(".")
-    return getattr(__import__(module, fromlist=[name]), name)
+def _msg_class(typename: str):
+    pkg, _, name = typename.partition("/msg/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
 class RecorderNode(Node):
-    """Raw, lossless recorder of the clutch topics (see module docstring)."""
+    """Raw recorder with exact loss accounting and optional splitting (see module doc)."""
 
     def __init__(self, **kwargs):
         super().__init__(NAME, **kwargs)
-
-
-        cfg = declare_params(self, PARAMS)
+        cfg = self._cfg = declare_params(self, PARAMS)
         if cfg["recorder.storage"] not in ("mcap", "sqlite3"):
             raise ValueError(f"recorder.storage must be mcap or sqlite3, got "
                              f"{cfg['recorder.storage']!r}")
-        for topic in cfg["recorder.topics"]:
-            if topic not in DEFAULT_TOPICS:
-                raise ValueError(f"recorder.topics: unknown topic {topic!r} "
-                                 f"(known: {', '.join(DEFAULT_TOPICS)})")
         output = cfg["recorder.output"] or f"runs/rec-{time.strftime('%Y%m%d-%H%M%S')}"
         self.output = Path(output)
+        if self.output.exists():
+            raise ValueError(f"recorder.output {self.output} exists already; bags are never "
+                             "overwritten")
         self.output.parent.mkdir(parents=True, exist_ok=True)
-        self._writer = BagWriter(self.output, storage=cfg["recorder.storage"],
-                                 namespace=self.get_namespace()).open()
+        self._split = bool(cfg["recorder.split_size"] or cfg["recorder.split_duration"])
+        self.parts: list[Path] = []
+        self._closed_written: dict[str, int] = {}
+        self._types: dict[str, str] = {}  # absolute topic -> type
+        self._writer = self._new_part()
         self.loss = LossTracker()
+        self._pending = []
+        self._best_effort: set[str] = set()
         for topic in cfg["recorder.topics"]:
-            type_path, reliable = DEFAULT_TOPICS[topic]
-            name = self._writer.add_topic(topic, type_path.replace(".msg.", "/msg/"))
-            if reliable:
-                qos = QoSProfile(history=HistoryPolicy.KEEP_ALL,
-                                 reliability=ReliabilityPolicy.RELIABLE)
-            else:
-                qos = QoSProfile(depth=cfg["recorder.queue_depth"],
-                                 reliability=ReliabilityPolicy.BEST_EFFORT)
-            self.loss.add_topic(name)
-            self.create_subscription(_import(type_path), topic, self._writer_for(name), qos,
-                                     raw=True)
+            if topic in DEFAULT_TOPICS:
+                self._subscribe(topic, *DEFAULT_TOPICS[topic])
+            elif topic:
+                self._pending.append(topic)
+        if self._pending:
+            self._resolve_pending()
+            self._resolver = self.create_timer(1.0, self._resolve_pending)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
-        self.get_logger().info(f"recording {', '.join(self.loss.topics)} to {self.output}")
+        waiting = f" (waiting for {', '.join(self._pending)})" if self._pending else ""
+        self.get_logger().info(f"recording {', '.join(self.loss.topics) or 'nothing yet'}"
+                               f"{waiting} to {self.output}")
 
+    # -- topics ---------------------------------------------------------------------------
+    def _offered_reliable(self, topic: str, default: bool) -> bool:
+        """Return True when every publisher of ``topic`` offers reliable (default: none yet)."""
+        infos = self.get_publishers_info_by_topic(self.resolve_topic_name(topic))
+        if not infos:
+            return default
+        return all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+
+    def _subscribe(self, topic: str, typename: str, reliable: bool) -> None:
+        name = self._writer.add_topic(topic, typename)
+        self._types[name] = typename
+        reliable = self._offered_reliable(topic, reliable)
+        if not reliable:
+            self._best_effort.add(name)
+        if reliable:
+            qos = QoSProfile(history=HistoryPolicy.KEEP_ALL,
+                             reliability=ReliabilityPolicy.RELIABLE)
+        else:
+            qos = QoSProfile(depth=self._cfg["recorder.queue_depth"],
+                             reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.loss.add_topic(name)
+        self.create_subscription(_msg_class(typename), topic, self._writer_for(name), qos,
+                                 raw=True)
+
+    def _resolve_pending(self) -> None:
+        """Subscribe to pending topics whose type the graph now advertises."""
+        advertised = dict(self.get_topic_names_and_types())
+        for topic in list(self._pending):
+            types = advertised.get(self.resolve_topic_name(topic))
+            if not types:
+                continue
+            self._pending.remove(topic)
+            try:
+                self._subscribe(topic, types[0], True)
+                self.get_logger().info(f"recording {topic} ({types[0]})")
+            except (ClutchError, ImportError, AttributeError) as err:
+                self.get_logger().error(f"cannot record {topic} ({types[0]}): {err}")
+        if not self._pending and getattr(self, "_resolver", None) is not None:
+            self.destroy_timer(self._resolver)
+            self._resolver = None
+
+    # -- writing and splitting ------------------------------------------------------------
+    def _new_part(self) -> BagWriter:
+        path = self.output / f"part_{len(self.parts):04d}" if self._split else self.output
+        self.parts.append(path)
+        writer = BagWriter(path, storage=self._cfg["recorder.storage"],
+                           namespace=self.get_namespace()).open()
+        for topic, typename in self._types.items():
+            writer.add_topic(topic, typename)
+        self._part_bytes, self._part_start = 0, None
+        return writer
+
+    def _rotate_if_due(self, stamp_ns: int) -> None:
+        size, span = self._cfg["recorder.split_size"], self._cfg["recorder.split_duration"]
+        if not (size or span):
+            return
+        if self._part_start is None:
+            self._part_start = stamp_ns
+            return
+        if (size and self._part_bytes >= size) or \
+                (span and (stamp_ns - self._part_start) * 1e-9 >= span):
+            if not self._split:  # splitting switched on live: this bag stays as it is
+                return
+            self._finish(self._writer)
+            self._writer = self._new_part()
+            self._part_start = stamp_ns
+
+    def _finish(self, writer: BagWriter) -> None:
+        for topic, n in writer.close().items():
+            self._closed_written[topic] = self._closed_written.get(topic, 0) + n
+
+    def _writer_for(self, name: str):
+        loss, clock = self.loss, self.get_clock()
+
+        def write(data: bytes, info) -> None:
+            gap = loss.received(name, info)
+            stamp = clock.now().nanoseconds
+            self._rotate_if_due(stamp)
+            if gap:
+                self._writer.mark_dropped(name, gap)
+            self._writer.write_raw(name, stamp, data)
+            self._part_bytes += len(data)
+        return write
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        """Apply split and drain settings; splitting itself must be chosen at start."""
+        for p in params:
+            if p.name in ("recorder.split_size", "recorder.split_duration") and p.value \
+                    and not self._split:
+                return SetParametersResult(successful=False, reason=(
+                    f"{p.name}: splitting is chosen at start (the output is then a directory "
+                    "of parts); this recorder writes one bag"))
+        for p in params:
+            if p.name in LIVE:
+                self._cfg[p.name] = p.value
+        return SetParametersResult(successful=True)
+
+    # -- reporting ------------------------------------------------------------------------
     @property
     def received(self) -> dict[str, int]:
         """Messages received per topic (absolute name) [messages]."""
         return self.loss.counts("received")
 
-    def _writer_for(self, name: str):
-        loss, writer, clock = self.loss, self._writer, self.get_clock()
-
-        def write(data: bytes, info) -> None:
-            gap = loss.received(name, info)
-            if gap:
-                writer.mark_dropped(name, gap)
-            writer.write_raw(name, clock.now().nanoseconds, data)
-        return write
+    @property
+    def written(self) -> dict[str, int]:
+        """Messages written per topic over every part [messages]."""
+        out = dict(self._closed_written)
+        if not self._writer.closed:
+            for topic, n in self._writer.written.items():
+                out[topic] = out.get(topic, 0) + n
+        return out
 
     def _diagnose(self):
+        written = self.written
         values = {}
         for topic, stats in self.loss.topics.items():
             values[f"received{topic}"] = stats.received
-            values[f"written{topic}"] = self._writer.written.get(topic, 0)
+            values[f"written{topic}"] = written.get(topic, 0)
             values[f"dropped{topic}"] = stats.dropped
             values[f"missed_at_start{topic}"] = stats.missed_at_start
-        values["output"] = str(self.output)
-        values["loss_tracked"] = self.loss.tracked
+        values.update(output=str(self.output), parts=len(self.parts),
+                      loss_tracked=self.loss.tracked, waiting_for=",".join(self._pending))
         dropped = sum(s.dropped for s in self.loss.topics.values())
         if dropped:
             return "WARN", f"recording to {self.output}; {dropped} messages lost", values
@@ -122,19 +276,41 @@ class RecorderNode(Node):
 
     def summary(self) -> dict:
         """Return per topic: received, written, dropped, missed_at_start [messages]."""
-        return {topic: {"received": s.received, "written": self._writer.written.get(topic, 0),
-                        "dropped": s.dropped, "missed_at_start": s.missed_at_start}
+        written = self.written
+        return {topic: {"received": s.received, "written": written.get(topic, 0),
+                        "dropped": s.dropped, "missed_at_start": s.missed_at_start,
+                        "best_effort": topic in self._best_effort}
                 for topic, s in self.loss.topics.items()}
 
+    def drain(self, executor, quiet: float | None = None, limit: float | None = None) -> int:
+        """Spin ``executor`` until no message arrived for ``quiet`` [s] (or ``limit`` [s]).
+
+        Call before :meth:`close` at shutdown so what DDS still queues for the recorder is
+        written. Returns the messages taken while draining.
+        """
+        quiet = self._cfg["recorder.drain_quiet"] if quiet is None else quiet
+        limit = self._cfg["recorder.drain_timeout"] if limit is None else limit
+        start = total = sum(self.received.values())
+        end, since = time.monotonic() + limit, time.monotonic()
+        while time.monotonic() < end and time.monotonic() - since < quiet:
+            executor.spin_once(timeout_sec=0.02)
+            now_total = sum(self.received.values())
+            if now_total != total:
+                total, since = now_total, time.monotonic()
+        return total - start
+
     def close(self) -> dict[str, int]:
-        """Finish the bag (verifying counts) and return messages written per topic."""
+        """Finish the bag(s) (verifying counts) and return messages written per topic."""
         if self._writer.closed:
-            return dict(self._writer.written)
+            return self.written
         self._writer.set_custom_data("clutch_ros.received", format_counts(self.received))
         self._writer.set_custom_data("clutch_ros.missed_at_start",
                                      format_counts(self.loss.counts("missed_at_start")))
         self._writer.set_custom_data("clutch_ros.loss_tracked", str(self.loss.tracked).lower())
-        written = self._writer.close()
+        if self._split:
+            self._writer.set_custom_data("clutch_ros.parts", str(len(self.parts)))
+        self._finish(self._writer)
+        written = self.written
         lost = {k: n - written.get(k, 0) for k, n in self.received.items()
                 if n != written.get(k, 0)}
         if lost:
@@ -143,9 +319,45 @@ class RecorderNode(Node):
         return written
 
 
+def _run(args) -> int:
+    """Spin the recorder until SIGINT/SIGTERM, then drain the DDS queues and close."""
+    stop = {"now": False}
+
+    def on_signal(signum, frame):
+        stop["now"] = True
+
+    rclpy.init(args=[sys.argv[0], *args], signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        try:
+            node = RecorderNode()
+        except (ClutchError, ValueError, ParameterException) as err:
+            sys.stderr.write(f"{NAME}: error: {err}\n")
+            return 2
+        signal.signal(signal.SIGINT, on_signal)
+        signal.signal(signal.SIGTERM, on_signal)
+        executor = make_executor("single")
+        executor.add_node(node)
+        while not stop["now"]:
+            executor.spin_once(timeout_sec=0.1)
+        drained = node.drain(executor)
+        node.get_logger().info(f"shutdown: {drained} queued messages drained")
+        node.close()
+        executor.shutdown()
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
 def main(args=None) -> int:
     """Console entry point: ``ros2 run clutch_ros recorder``."""
-    return run_node(NAME, __doc__, PARAMS, RecorderNode, args)
+    argv = list(sys.argv[1:] if args is None else args)
+    if help_requested(argv):
+        sys.stdout.write(format_help(NAME, __doc__, PARAMS))
+        return 0
+    return _run(argv)
 
 
 if __name__ == "__main__":

@@ -12,6 +12,10 @@ Modes: ``rig.scenario`` empty is the operator mode: the motor holds ``rig.slip_s
 pump follows the bus. Otherwise a scripted run of the thesis (Tables 3-4):
 ``table3:SEQ:RPM`` (DBP), ``table4:SEQ`` (PBD), or ``closed_loop[:RPM,...[:SEGMENT_S]]``.
 Frames are stamped with the wall clock (like a real adapter's receive time).
+
+Only ``rig.slip_speed`` changes at run time (operator mode); the bus, the plant, the scenario,
+the step and the seed are read-only (fixed when the simulation starts). Its /diagnostics
+``hardware_id`` is ``simulated rig (interface:channel)``.
 """
 
 from __future__ import annotations
@@ -25,22 +29,27 @@ from rclpy.node import Node
 
 from clutch_ros.canbus import BusConfig, ReconnectingBus
 from clutch_ros.nodes.common import Diagnostics, ParamSpec, declare_params, run_node
-from clutch_ros.rig import RigCanPort, RigPlant, RigSimulator
+from clutch_ros.rig import RigPlant, RigSimulator
+from clutch_ros.rig.can_io import RigCanPort
 from clutch_ros.rig.scenario import ScenarioPoint, scenario_from_spec
 
 NAME = "rig_sim"
 PARAMS = [
-    ParamSpec("can.interface", "udp_multicast", "python-can interface of the simulated rig"),
-    ParamSpec("can.channel", "239.74.163.2", "interface channel (multicast group ...)"),
-    ParamSpec("can.port", 43113, "UDP port (udp_multicast only)", "", 1, 65535),
-    ParamSpec("rig.params_file", "rig_truth", "truth-plant parameter file or preset name"),
+    ParamSpec("can.interface", "udp_multicast", "python-can interface of the simulated rig",
+              read_only=True),
+    ParamSpec("can.channel", "239.74.163.2", "interface channel (multicast group ...)",
+              read_only=True),
+    ParamSpec("can.port", 43113, "UDP port (udp_multicast only)", "", 1, 65535, read_only=True),
+    ParamSpec("rig.params_file", "rig_truth", "truth-plant parameter file or preset name",
+              read_only=True),
     ParamSpec("rig.scenario", "", "empty: operator mode (rig.slip_speed, pump from the bus); "
-              "or table3:SEQ:RPM, table4:SEQ, closed_loop[:RPM,...[:SEGMENT_S]]"),
-    ParamSpec("rig.repeat", False, "restart a scripted scenario at its end"),
+              "or table3:SEQ:RPM, table4:SEQ, closed_loop[:RPM,...[:SEGMENT_S]]", read_only=True),
+    ParamSpec("rig.repeat", False, "restart a scripted scenario at its end", read_only=True),
     ParamSpec("rig.slip_speed", 0.0, "operator mode: slip speed held by the rig motor",
               "rad/s", -100.0, 100.0),
-    ParamSpec("rig.dt", 0.001, "simulation step", "s", 1e-4, 0.01),
-    ParamSpec("rig.seed", 0, "seed of the sensor variation and noise", "", 0, 2**31 - 1),
+    ParamSpec("rig.dt", 0.001, "simulation step", "s", 1e-4, 0.01, read_only=True),
+    ParamSpec("rig.seed", 0, "seed of the sensor variation and noise", "", 0, 2**31 - 1,
+              read_only=True),
 ]
 
 
@@ -80,7 +89,8 @@ class RigSimNode(Node):
         self._stats = None
         self._thread = threading.Thread(target=self._run, name="rig_sim", daemon=True)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._diag = Diagnostics(self, self._diagnose)
+        self._diag = Diagnostics(self, self._diagnose, hardware_id=(
+            f"simulated rig ({cfg['can.interface']}:{cfg['can.channel']})"))
         self._thread.start()
         self.get_logger().info(f"simulated rig running scenario '{self._scenario.name}' on "
                                f"{cfg['can.interface']}:{cfg['can.channel']}")

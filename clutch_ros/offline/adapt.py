@@ -95,20 +95,22 @@ def _stack(estimates: list, accepted: np.ndarray, stamps: np.ndarray, n_lam: int
 
 def adaptive_replay(bags, params, settings: AdaptationSettings | None = None, *,
                     estimator: AdaptiveEstimator | None = None,
-                    drop_torque_after: float | None = None) -> list[AdaptiveReplay]:
+                    drop_torque_after: float | None = None,
+                    topic: str | None = None) -> list[AdaptiveReplay]:
     """Replay ``bags`` in order through one adaptive estimator; return one result per bag.
 
     ``estimator`` continues an existing one (its learned values), else a new one starts at
     scale 1 with ``settings``. ``drop_torque_after`` [s, from each bag's first sample]
     makes the torque measurement absent from then on (``has_measured_torque`` false), for
-    checking the freeze (tests and demonstrations).
+    checking the freeze (tests and demonstrations). ``topic`` chooses the RigState topic
+    (default: the bag's only one).
     """
     ae = estimator or AdaptiveEstimator(params, settings)
     out = []
     for bag in bags:
         ae.reset()  # each bag is its own recording (own clock); the learned values stay
         path = Path(bag)
-        rig = read_rig_states(path)
+        rig = read_rig_states(path, topic)
         if len(rig) == 0:
             raise BagError(path, f"no RigState messages on {rig.topic}")
         t = stamps_s(rig)

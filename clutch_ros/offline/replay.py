@@ -33,6 +33,7 @@ from clutch_ros.model import accuracy_summary, estimate_batch, within_band
 __all__ = [
     "ESTIMATE_FIELDS",
     "ReplayResult",
+    "estimate_layout",
     "published_rows",
     "replay_bag",
     "stamps_s",
@@ -146,7 +147,33 @@ def write_estimates(
 
     """
     batch = result.batch
-    rows = published_rows(batch)
+    serializer, rows, stamps, columns = estimate_layout(result)
+    columns.update(extra_columns or {})
+    custom = {"clutch_ros.replay_of": str(result.bag), "clutch_ros.spline_law": batch.spline_law}
+    with BagWriter(
+        out, storage=storage, compression=compression, delete_on_error=True, custom_data=custom
+    ) as writer:
+        topic = writer.add_topic("/clutch_estimate", CLUTCH_ESTIMATE)
+        return write_columns(writer, topic, serializer, stamps, columns)
+
+
+def estimate_layout(
+    result: ReplayResult,
+) -> tuple[TemplateSerializer, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """Return how the ClutchEstimate stream of ``result`` is serialized, one place for all.
+
+    Used by :func:`write_estimates` and by the dashboard's bag playback, so both produce the
+    same bytes for the same sample.
+
+    Returns:
+        ``(serializer, rows, stamps_ns, columns)``: the message layout (frame id of the
+        first input, the law's name, one force per lamella); the indices of the
+        :func:`published_rows` in the RigState arrays; their header stamps [ns since epoch];
+        the :data:`ESTIMATE_FIELDS` columns of those rows.
+
+    """
+    batch = result.batch
+    rows = np.flatnonzero(published_rows(batch))
     n_lamellas = batch.lamella_normal_force.shape[1]
     serializer = TemplateSerializer(
         CLUTCH_ESTIMATE,
@@ -156,13 +183,8 @@ def write_estimates(
         spline_friction_force=np.zeros(n_lamellas),
     )
     columns = {name: getattr(batch, name)[rows] for name in ESTIMATE_FIELDS}
-    columns.update(extra_columns or {})
-    custom = {"clutch_ros.replay_of": str(result.bag), "clutch_ros.spline_law": batch.spline_law}
-    with BagWriter(
-        out, storage=storage, compression=compression, delete_on_error=True, custom_data=custom
-    ) as writer:
-        topic = writer.add_topic("/clutch_estimate", CLUTCH_ESTIMATE)
-        return write_columns(writer, topic, serializer, result.rig.stamp_ns[rows], columns)
+    stamps = np.asarray(result.rig.stamp_ns, dtype=np.int64)[rows]
+    return serializer, rows, stamps, columns
 
 
 def _first_frame_id(result: ReplayResult) -> str:

@@ -5,15 +5,17 @@ Modules:
     thermal     :class:`ThermalModel` — lamella heating from slip power, cooling to the oil
     flexiforce  :class:`FlexiForceArray` — 4 front + 4 rear FlexiForce voltages
     plant       :class:`RigPlant` — the truth plant producing :class:`RigSignals`
-    scenario    Tables 3–4 scripted runs, closed-loop runs, :func:`run_offline`
+    scenario    Tables 3–4 scripted runs, closed-loop runs
+    simulator   :class:`RigSimulator` — plant + scenario (+ an optional CAN port) at 1 kHz;
+                :func:`run_offline` — a run without a bus, as arrays
     can_io      :class:`RigCanPort` — DBC frames out at their cycle times, pump requests in
-    simulator   :class:`RigSimulator` — plant + scenario + port at 1 kHz
+                (import it from ``clutch_ros.rig.can_io``: it needs python-can, the rest of
+                the simulated rig does not)
 
 The ``rig_sim`` ROS node is a thin adapter around :class:`RigSimulator`. Units are SI
 (temperatures in °C) everywhere.
 """
 
-from clutch_ros.rig.can_io import FrameScheduler, PumpRequestMonitor, RigCanPort
 from clutch_ros.rig.errors import RigConfigError, RigError
 from clutch_ros.rig.flexiforce import FlexiForceArray, FlexiForceParams
 from clutch_ros.rig.plant import NoiseParams, RigPlant, RigPlantParams, RigSignals
@@ -33,12 +35,9 @@ __all__ = [
     "ClosedLoopScenario",
     "FlexiForceArray",
     "FlexiForceParams",
-    "FrameScheduler",
     "NoiseParams",
     "PumpModel",
     "PumpParams",
-    "PumpRequestMonitor",
-    "RigCanPort",
     "RigConfigError",
     "RigError",
     "RigPlant",

@@ -27,16 +27,34 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
-from clutch_ros.rig.can_io import RigCanPort
 from clutch_ros.rig.errors import RigConfigError, check_positive
 from clutch_ros.rig.plant import RigPlant, RigSignals
 from clutch_ros.rig.scenario import Scenario
 
-__all__ = ["RigSimulator", "RunStats", "run_offline"]
+__all__ = ["CanPort", "RigSimulator", "RunStats", "run_offline"]
+
+
+class CanPort(Protocol):
+    """What the simulator needs of a CAN port (:class:`clutch_ros.rig.can_io.RigCanPort`).
+
+    The simulator itself does not depend on python-can: a run without a bus (``port=None``,
+    golden data, tests of the model) works where python-can is not installed.
+    """
+
+    sent: int  # frames sent so far
+
+    def poll(self, now: float) -> int:
+        """Receive pending frames at ``now`` [s]; return the valid pump requests among them."""
+
+    def requested_pressure(self, now: float) -> float:
+        """Return the pressure [Pa] the pump follows at ``now`` [s]."""
+
+    def send_due(self, now: float, signals: Any, timestamp: float | None = None) -> int:
+        """Send the frames due at ``now`` [s] carrying ``signals``; return how many."""
 
 
 @dataclass
@@ -79,7 +97,7 @@ class RigSimulator:
 
     """
 
-    def __init__(self, plant: RigPlant, scenario: Scenario, port: RigCanPort | None = None,
+    def __init__(self, plant: RigPlant, scenario: Scenario, port: CanPort | None = None,
                  dt: float = 1e-3,
                  pressure_source: Callable[[float, RigSignals | None], float] | None = None,
                  on_step: Callable[[RigSignals], None] | None = None,

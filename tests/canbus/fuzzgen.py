@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import can
 
+from clutch_ros.canbus.counters import UNKNOWN_ID_CAPACITY
 from clutch_ros.canbus.dbc import RigDatabase, crc8_sae_j1850
 
 FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
@@ -30,7 +31,7 @@ class Expected:
     unknown_frames: int = 0
     decoded_frames: int = 0
     decode_errors: Counter = field(default_factory=Counter)
-    unknown_ids: set = field(default_factory=set)
+    unknown_ids: Counter = field(default_factory=Counter)  # in order of first appearance
     last: dict = field(default_factory=dict)  # message name -> SI values sent last
 
 
@@ -82,7 +83,7 @@ def generate(seed: int, count: int, db: RigDatabase) -> tuple[list[can.Message],
             data = rng.randbytes(rng.randint(0, 8))
             msg = can.Message(arbitration_id=arb, is_extended_id=ext, data=data)
             exp.unknown_frames += 1
-            exp.unknown_ids.add(arb | (0x80000000 if ext else 0))
+            exp.unknown_ids[arb | (0x80000000 if ext else 0)] += 1
         elif kind == "bad_dlc":
             spec = db.frame(rng.choice(names))
             data = rng.randbytes(rng.choice([0, 1, 2, 3, 4, 5, 6, 7]))
@@ -122,7 +123,7 @@ def generate(seed: int, count: int, db: RigDatabase) -> tuple[list[can.Message],
                 bitrate_switch=rng.random() < 0.5, data=rng.randbytes(rng.choice(FD_LENGTHS)),
             )
             exp.unknown_frames += 1
-            exp.unknown_ids.add(arb | (0x80000000 if ext else 0))
+            exp.unknown_ids[arb | (0x80000000 if ext else 0)] += 1
             exp.fd_frames += 1
         else:  # fd_known_long
             spec = db.frame(rng.choice(names))
@@ -149,7 +150,10 @@ def check_counters(counters, exp: Expected) -> None:
     assert counters.unknown_frames == exp.unknown_frames
     assert counters.decoded_frames == exp.decoded_frames
     assert counters.decode_errors_by_reason == {k: v for k, v in exp.decode_errors.items() if v}
-    assert counters.unknown_ids == exp.unknown_ids
+    # exact counts for the first UNKNOWN_ID_CAPACITY distinct keys, the rest summed
+    tracked = dict(list(exp.unknown_ids.items())[:UNKNOWN_ID_CAPACITY])
+    assert counters.unknown_id_counts == tracked
+    assert counters.unknown_untracked == exp.unknown_frames - sum(tracked.values())
     assert counters.dropped_frames == 0
     assert counters.counter_repeats == 0
     assert counters.listener_errors == 0

@@ -8,10 +8,12 @@ receives every group joined on that port by anyone unless it clears ``IP_MULTICA
 from __future__ import annotations
 
 import random
+import socket
 import threading
 import time
 
 import can
+import msgpack
 
 from clutch_ros.canbus.bus import BusConfig, open_bus
 
@@ -26,6 +28,52 @@ def private_group() -> tuple[str, int]:
 def bus_params(group: str, port: int) -> dict:
     """Node parameters selecting that group."""
     return {"can.interface": "udp_multicast", "can.channel": group, "can.port": port}
+
+
+def _frame_dict(**changes) -> dict:
+    """python-can's udp_multicast datagram fields for a valid 11-bit frame, with ``changes``."""
+    fields = {"timestamp": 0.0, "arbitration_id": 0x123, "is_extended_id": False,
+              "is_remote_frame": False, "is_error_frame": False, "channel": None, "dlc": 2,
+              "data": b"\x01\x02", "is_fd": False, "bitrate_switch": False,
+              "error_state_indicator": False}
+    fields.update(changes)
+    return fields
+
+
+#: Datagrams that are no CAN frame, with the reason ReconnectingBus must count them under.
+MALFORMED_DATAGRAMS: tuple[tuple[str, bytes], ...] = (
+    ("not_msgpack", b"\xc1 this is not msgpack"),
+    ("not_msgpack", b"\x92"),  # a truncated array
+    ("invalid_frame", msgpack.packb(_frame_dict(arbitration_id=0x900), use_bin_type=True)),
+    ("invalid_frame", msgpack.packb(_frame_dict(dlc=5), use_bin_type=True)),  # DLC != 2 bytes
+    ("invalid_frame", msgpack.packb(_frame_dict(dlc=12, data=bytes(12)), use_bin_type=True)),
+    ("not_a_frame", msgpack.packb(42)),
+    ("not_a_frame", msgpack.packb(_frame_dict(colour="red"), use_bin_type=True)),
+)
+
+
+class DatagramSender:
+    """A plain UDP socket sending raw datagrams to a multicast group (a careless tool)."""
+
+    def __init__(self, group: str, port: int) -> None:
+        self.address = (group, port)
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+        self.sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)
+        self.sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
+
+    def send(self, payload: bytes) -> None:
+        """Send one datagram."""
+        self.sock.sendto(payload, self.address)
+
+    def close(self) -> None:
+        """Close the socket."""
+        self.sock.close()
+
+    def __enter__(self) -> DatagramSender:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 class BusRecorder:

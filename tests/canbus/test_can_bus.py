@@ -19,11 +19,12 @@ from clutch_ros.canbus.bus import (
     parse_filters,
 )
 from clutch_ros.canbus.errors import BusConfigError, BusUnavailable
+from clutch_ros.canbus.udp import malformed_reason
 from clutch_ros.errors import ConfigError
 
 from . import flaky_bus
 from .flaky_bus import ADAPTERS, Adapter
-from .recorder import private_group
+from .recorder import MALFORMED_DATAGRAMS, DatagramSender, private_group
 
 
 class FakeClock:
@@ -350,6 +351,61 @@ def test_udp_multicast_echo_removed_and_groups_isolated():
     with ReconnectingBus(BusConfig(interface="virtual", channel=f"v-{uuid.uuid4().hex}")) as v:
         v.send(can.Message(arbitration_id=1))
         assert v.own_echoes == 0
+
+
+def test_malformed_datagrams_are_counted_and_dropped_not_a_link_failure(caplog):
+    """Finding 1: one bad datagram used to take the udp_multicast link down and reconnect."""
+    group, port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
+    good = [can.Message(arbitration_id=0x100 + i, data=bytes([i])) for i in range(3)]
+    with ReconnectingBus(config, report_interval=60.0) as bus, open_bus(config) as peer, \
+            DatagramSender(group, port) as junk, caplog.at_level(logging.WARNING):
+        for _ in range(3):
+            for _, payload in MALFORMED_DATAGRAMS:
+                junk.send(payload)
+        for msg in good:
+            peer.send(msg)
+        got = []
+        while (msg := bus.recv(0.5)) is not None:
+            got.append(msg)
+        status = bus.status()
+    assert [(m.arbitration_id, bytes(m.data)) for m in got] == [
+        (m.arbitration_id, bytes(m.data)) for m in good]
+    expected = {}
+    for reason, _ in MALFORMED_DATAGRAMS:
+        expected[reason] = expected.get(reason, 0) + 3
+    assert status.malformed_by_reason == expected
+    assert status.malformed_frames == 3 * len(MALFORMED_DATAGRAMS)
+    assert status.state == LinkState.UP and status.disconnects == 0 and status.connects == 1
+    warnings = [r for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(warnings) == 1 and "malformed" in warnings[0].getMessage()  # no storm
+
+
+def test_transport_failure_still_takes_the_link_down(adapter):
+    """A receive error caused by the OS (or without a cause) is a link failure, as before."""
+    config, plug, _ = adapter
+    with ReconnectingBus(config, clock=FakeClock(), sleep=lambda s: None) as bus:
+        plug.plugged = False
+        bus.recv(0.0)
+        assert bus.status().state == LinkState.DOWN and bus.malformed_frames == 0
+
+
+def test_malformed_reason_tells_transport_from_datagram_errors():
+    def wrapped(cause):
+        try:
+            try:
+                raise cause
+            except Exception as err:
+                raise can.CanOperationError("wrapped") from err
+        except can.CanOperationError as outer:
+            return outer
+
+    assert malformed_reason(wrapped(OSError(100, "Network is down"))) is None
+    assert malformed_reason(wrapped(can.CanOperationError("socket"))) is None
+    assert malformed_reason(can.CanOperationError("no cause")) is None
+    assert malformed_reason(OSError(19, "No such device")) is None
+    assert malformed_reason(wrapped(ValueError("Unpack failed"))) == "not_msgpack"
+    assert malformed_reason(wrapped(TypeError("bad keyword"))) == "not_a_frame"
 
 
 def test_bus_config_from_node_params():

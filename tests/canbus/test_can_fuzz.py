@@ -106,8 +106,8 @@ def test_fuzz_udp_multicast_between_processes(db):
             # udp_multicast loops our own frames back: the pump requests below add 5 frames
             gate = PumpCommandGate(time.monotonic, PumpGateConfig(rate_limit_up=math.inf))
             sent = []
-            for _ in range(5):
-                out = gate.submit(12.5e5)
+            for i in range(5):  # a change (first), then periodic frames of the same request
+                out = gate.submit(12.5e5, time.time()) if i == 0 else gate.tick()
                 assert bus.try_send(out.frame)
                 sent.append(out.frame.data[1] & 0x0F)
                 time.sleep(0.01)

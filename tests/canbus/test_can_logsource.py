@@ -48,7 +48,8 @@ def test_logfile_asc_counts(db):
     assert (c.frames_total, c.error_frames, c.remote_frames, c.data_frames) == (20, 4, 4, 12)
     assert c.fd_frames == 3  # 0x300 and 0x4EE data, 0x50005x remote
     assert c.unknown_frames == 12 and c.decoded_frames == 0 and c.decode_errors == 0
-    assert c.unknown_ids_text() == "0x300, 0x4EE, 0x6F8, 0x6F9, 0x18EBFF00x"
+    assert c.unknown_ids_text() == "0x18EBFF00x: 8, 0x300: 1, 0x4EE: 1, 0x6F8: 1, 0x6F9: 1"
+    assert c.unknown_ids_text(limit=2) == "0x18EBFF00x: 8, 0x300: 1, +3 IDs: 3 frames"
     assert c.per_id[0x100] == 1  # a remote frame with our RigFast id: counted, not decoded
 
 

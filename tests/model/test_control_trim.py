@@ -103,7 +103,9 @@ def test_anti_windup_at_the_pressure_limit(flexiforce):
 
 
 @settings(max_examples=100, deadline=None)
-@given(st.lists(st.tuples(st.floats(-100, 3000), st.one_of(st.floats(-5000, 5000), st.just(math.nan), st.just(math.inf)),
+@given(st.lists(st.tuples(st.floats(-100, 3000),
+                          st.one_of(st.floats(-5000, 5000), st.just(math.nan),
+                                    st.just(math.inf)),
                           st.floats(-5000, 5000), st.floats(0.3, 3.0)),
                 min_size=1, max_size=80))
 def test_pressure_never_outside_the_limits(flexiforce, rows):

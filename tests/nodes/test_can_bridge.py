@@ -68,6 +68,16 @@ def _diag(bucket, name: str) -> dict:
     return {}
 
 
+def _command(node, pressure: float, age: float = 0.0, **fields):
+    """Return a PressureCommand stamped ``age`` [s] before ``node``'s clock (< 0: ahead)."""
+    from clutch_msgs.msg import PressureCommand
+    from rclpy.duration import Duration
+
+    msg = PressureCommand(pressure=pressure, **fields)
+    msg.header.stamp = (node.get_clock().now() - Duration(nanoseconds=int(age * 1e9))).to_msg()
+    return msg
+
+
 def _close(actual: float, expected: float, signal: str) -> bool:
     return abs(actual - expected) <= DB.signal(signal).resolution * 0.51 + 1e-9
 
@@ -141,7 +151,7 @@ def test_rig_state_pump_requests_watchdog_and_limits(tmp_path):
                 # 2. commands -> PumpRequests the rig follows (distinct values, 100 Pa apart)
                 commands = [10e5 + 100.0 * i for i in range(40)]
                 for pressure in commands:
-                    pub.publish(PressureCommand(pressure=pressure, requested_torque=100.0))
+                    pub.publish(_command(h.node, pressure, requested_torque=100.0))
                     h.spin_for(0.02)
                 # 3. the watchdog zeroes the request
                 h.spin_until(lambda: any(a.reason.startswith("watchdog") for a in applied),
@@ -150,7 +160,7 @@ def test_rig_state_pump_requests_watchdog_and_limits(tmp_path):
                 # 4. bad commands, each marked by its requested_torque
                 bad = [math.nan, -5e5, math.inf, -math.inf, 1e12, 1e308]
                 for marker, value in enumerate(bad, start=1000):
-                    pub.publish(PressureCommand(pressure=value, requested_torque=float(marker)))
+                    pub.publish(_command(h.node, value, requested_torque=float(marker)))
                     h.spin_until(lambda m=marker: any(a.requested_torque == m for a in applied),
                                  10.0, f"the report of command {value}")
                 h.spin_until(lambda: _diag(diags, "/can_bridge").get("watchdog_trips") == "2",
@@ -270,6 +280,13 @@ def test_fuzz_through_the_node_and_quiet_idle_bus(tmp_path):
                 "decode_errors_checksum": exp.decode_errors["checksum"]}
     assert {k: int(view.get(k, 0)) for k in expected} == expected
     assert view["link_state"] == "up" and view["disconnects"] == "0"
+    # finding 5: the status stays bounded (it held 7,107 key-values after such a burst)
+    sizes = [len(s.values) for a in diags for s in a.status if s.name == "/can_bridge"]
+    distinct = len(exp.unknown_ids)
+    print(f"\nfuzz burst: {total} frames at {rate:.0f}/s, {distinct} distinct unknown IDs; "
+          f"largest /can_bridge status {max(sizes)} key-values; unknown_ids = "
+          f"{view['unknown_ids']!r}")
+    assert distinct > 1000 and max(sizes) <= 200
     last = states[-1]
     exp.last["RigSpeed"] = final_values
     for name, field, signal in (("RigFast", "actuating_pressure", "ActuatingPressure"),

@@ -1,0 +1,158 @@
+"""``clutch up LAUNCHFILE [name:=value ...]``: start the node set of an XML launch file here.
+
+``ros2 launch`` is not installed where ROS 2 comes from the package index, so this reads the
+same ``launch/*.launch.xml`` files (the subset :mod:`clutch_ros.config.launch_file` accepts)
+and starts each ``<node>`` as its own process with the demo's supervision
+(:class:`clutch_ros.cli.processes.NodeProcess`): output to ``<log dir>/<node>.log``; a node
+that exits ends the launch (its last log lines are printed) and the others are stopped;
+Ctrl-C or SIGTERM stops every node cleanly (SIGINT, then SIGTERM, then SIGKILL), in reverse
+start order. The nodes join the ROS graph of this shell (``ROS_DOMAIN_ID``,
+``ROS_AUTOMATIC_DISCOVERY_RANGE`` as set).
+
+LAUNCHFILE is a path, or the name of a file in the package's ``launch/`` directory
+(``clutch up sim.launch.xml``). ``--print`` lists the node command lines and exits.
+"""
+
+from __future__ import annotations
+
+import shlex
+import signal
+import sys
+import time
+from pathlib import Path
+
+from clutch_ros.cli.dispatch import emit_json
+from clutch_ros.cli.processes import NodeProcess, node_env
+from clutch_ros.config.launch_file import (
+    LaunchFileError,
+    load_launch,
+    package_share,
+    parse_overrides,
+)
+
+__all__ = ["NODE_EXECUTABLES", "add_parser", "resolve_launch_file", "run"]
+
+#: Executables this package installs (``setup.py`` NODES; a test keeps the two equal); each
+#: runs as ``python -m clutch_ros.nodes.<name>``.
+NODE_EXECUTABLES = ("can_bridge", "rig_sim", "estimator", "controller", "recorder",
+                    "bag_player")
+POLL_S = 0.2  # [s] how often the supervisor looks at its nodes
+
+
+def add_parser(sub) -> None:
+    """Register ``clutch up``."""
+    p = sub.add_parser("up", help="start the nodes of an XML launch file (no ros2 launch "
+                       "needed)", description=__doc__.split("\n\n")[0])
+    p.add_argument("launch_file", metavar="LAUNCHFILE",
+                   help="launch file path, or a file name in the package's launch/ directory")
+    p.add_argument("arguments", nargs="*", metavar="name:=value",
+                   help="launch arguments (see --show-args)")
+    p.add_argument("--log-dir", help="directory of the node logs (default: "
+                   "runs/up-YYYYmmdd-HHMMSS/logs)")
+    p.add_argument("--print", dest="print_only", action="store_true",
+                   help="print each node's command line and exit")
+    p.add_argument("--show-args", action="store_true",
+                   help="list the launch file's arguments and exit")
+    p.add_argument("--json", action="store_true",
+                   help="with --print: the nodes as JSON on stdout")
+    p.set_defaults(func=run)
+
+
+def resolve_launch_file(name: str) -> Path:
+    """Return the path of launch file ``name`` (a path, or a file in ``<share>/launch``)."""
+    path = Path(name)
+    if path.is_file():
+        return path
+    if path.parent == Path("."):
+        shared = package_share() / "launch" / name
+        if shared.is_file():
+            return shared
+    raise LaunchFileError(f"no such launch file: {name}")
+
+
+def _check(description) -> None:
+    for node in description.nodes:
+        if node.pkg != "clutch_ros":
+            raise LaunchFileError(f"{description.path.name}: node {node.name}: package "
+                                  f"{node.pkg} cannot be started here (only clutch_ros)")
+        if node.executable not in NODE_EXECUTABLES:
+            raise LaunchFileError(f"{description.path.name}: node {node.name}: clutch_ros has "
+                                  f"no executable {node.executable!r} (it has "
+                                  f"{', '.join(NODE_EXECUTABLES)})")
+        for path in node.param_files:
+            if not Path(path).is_file():
+                raise LaunchFileError(f"{description.path.name}: node {node.name}: parameter "
+                                      f"file {path} not found")
+    names = [n.full_name for n in description.nodes]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise LaunchFileError(f"{description.path.name}: node name(s) used twice: "
+                              f"{', '.join(dupes)}")
+
+
+def _say(text: str) -> None:
+    sys.stderr.write(f"clutch up: {text}\n")
+    sys.stderr.flush()
+
+
+def _on_sigterm(signum, frame):
+    raise KeyboardInterrupt
+
+
+def run(args) -> int:
+    """Start the launch file's nodes and supervise them until one exits or we are stopped."""
+    path = resolve_launch_file(args.launch_file)
+    description = load_launch(path, parse_overrides(args.arguments))
+    if args.show_args:
+        for arg in description.args:
+            default = "(required)" if arg.default is None else f"default {arg.default!r}"
+            sys.stdout.write(f"{arg.name}: {arg.description} [{default}]\n")
+        return 0
+    _check(description)
+    if args.print_only:
+        commands = [{"name": n.full_name, "executable": n.executable, "args": n.ros_args()}
+                    for n in description.nodes]
+        if args.json:
+            emit_json(commands)
+        else:
+            for c in commands:
+                sys.stdout.write(shlex.join([c["executable"], *c["args"]]) + "\n")
+        return 0
+    log_dir = Path(args.log_dir or f"runs/up-{time.strftime('%Y%m%d-%H%M%S')}/logs")
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    procs: list[NodeProcess] = []
+    code = 0
+    try:
+        env = node_env()
+        for node in description.nodes:
+            log_name = node.full_name.strip("/").replace("/", ".")
+            procs.append(NodeProcess(log_name, node.ros_args(), env, log_dir,
+                                     executable=node.executable))
+            _say(f"started {node.full_name} ({node.executable}, pid {procs[-1].pid}), log "
+                 f"{procs[-1].log_path}")
+        _say(f"{len(procs)} nodes running from {path}; Ctrl-C stops them")
+        code = _supervise(procs)
+    except KeyboardInterrupt:
+        _say("stopping")
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second TERM must not cut the stop
+        for proc in reversed(procs):
+            rc = proc.stop()
+            if rc not in (0, -signal.SIGINT):
+                _say(f"{proc.name} exited with code {rc}; log {proc.log_path}")
+                code = code or 1
+        signal.signal(signal.SIGTERM, previous)
+    _say(f"all nodes stopped (exit code {code})")
+    return code
+
+
+def _supervise(procs: list[NodeProcess]) -> int:
+    """Wait until a node exits; report it and return 1 (0 when it ended with code 0)."""
+    while True:
+        time.sleep(POLL_S)
+        for proc in procs:
+            rc = proc.returncode
+            if rc is not None:
+                _say(f"node {proc.name} exited with code {rc}; stopping the others. "
+                     f"Last log lines:\n{proc.tail()}")
+                return 0 if rc == 0 else 1

@@ -1,0 +1,41 @@
+"""The live dashboard: the clutch topics on a Foxglove WebSocket server (foxglove-sdk).
+
+Layer: above :mod:`clutch_ros.offline` (the replay) and :mod:`clutch_ros.bag`, below the nodes; no
+rclpy here. The live ``dashboard`` node (:mod:`clutch_ros.nodes.dashboard`) forwards the bytes
+ROS delivers; ``clutch dashboard --bag`` plays a bag (:class:`BagStream`, :class:`BagPlayer`).
+
+- :mod:`~clutch_ros.dashboard.topics`: served topics, ``ros2msg`` schema text.
+- :mod:`~clutch_ros.dashboard.server`: :class:`DashboardServer` (channels, slow clients,
+  health figures).
+- :mod:`~clutch_ros.dashboard.bag_stream`: a bag as a message stream, estimates computed
+  with the offline replay when the bag has none.
+- :mod:`~clutch_ros.dashboard.player`: real-time (× rate) playback with ``/diagnostics``.
+"""
+
+from clutch_ros.dashboard.bag_stream import BagStream, estimate_frames
+from clutch_ros.dashboard.errors import DashboardError
+from clutch_ros.dashboard.player import BagPlayer, diagnostic_array_cdr
+from clutch_ros.dashboard.server import (
+    DEFAULT_BACKLOG,
+    DEFAULT_HOST,
+    DEFAULT_PORT,
+    DashboardServer,
+    absolute,
+)
+from clutch_ros.dashboard.topics import TOPICS, DashboardTopic, message_definition
+
+__all__ = [
+    "DEFAULT_BACKLOG",
+    "DEFAULT_HOST",
+    "DEFAULT_PORT",
+    "TOPICS",
+    "BagPlayer",
+    "BagStream",
+    "DashboardError",
+    "DashboardServer",
+    "DashboardTopic",
+    "absolute",
+    "diagnostic_array_cdr",
+    "estimate_frames",
+    "message_definition",
+]

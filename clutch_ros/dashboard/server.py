@@ -1,0 +1,277 @@
+"""The Foxglove WebSocket server of the dashboard (foxglove-sdk), with its health figures.
+
+:class:`DashboardServer` starts ``foxglove.start_server`` on its own ``foxglove.Context`` (so
+several servers can live in one process) and creates one channel per
+:data:`~clutch_ros.dashboard.topics.TOPICS` entry (``cdr`` payloads, ``ros2msg`` schemas, see
+:mod:`~clutch_ros.dashboard.topics`). :meth:`DashboardServer.publish` hands the CDR bytes of
+one message to the SDK, which sends them to every client subscribed to that channel (binary
+frames: opcode 1, u32 subscription id, u64 log time [ns], payload; subprotocol
+``foxglove.sdk.v1``).
+
+Slow clients (what foxglove-sdk 0.30 does, read in its source, ``rust/foxglove/src/websocket/
+connected_client``): every client has its own bounded outgoing queue of
+``message_backlog_size`` messages (``backlog`` here); a log call only *tries* to enqueue and,
+when the queue is full, drops that client's oldest queued message to make room. Logging never
+blocks, so a stalled client slows neither the publisher nor the other clients, and its memory
+stays bounded. The SDK does not return the number of messages it dropped (its ``SentLossy``
+count is discarded); what it does expose is a log record ``outbox for client ADDR full``
+(logger ``foxglove.websocket.connected_client.send_lossy``, at most one per 30 s per process).
+The server counts those overflow events per client address, and counts client connections
+from the SDK's ``Registered client`` / ``Unregistered client`` records; :meth:`status` reports
+them with the messages forwarded per topic, for ``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import threading
+import time
+from collections.abc import Iterable
+from typing import Any
+
+from clutch_ros.dashboard.errors import DashboardError
+from clutch_ros.dashboard.topics import (
+    MESSAGE_ENCODING,
+    SCHEMA_ENCODING,
+    TOPICS,
+    DashboardTopic,
+    message_definition,
+)
+
+__all__ = ["DEFAULT_BACKLOG", "DEFAULT_HOST", "DEFAULT_PORT", "DashboardServer", "absolute"]
+
+DEFAULT_PORT = 8765
+DEFAULT_HOST = "127.0.0.1"
+#: Messages queued per client before the oldest is dropped (the SDK's default is 1024).
+DEFAULT_BACKLOG = 1024
+
+_OVERFLOW_LOGGER = "foxglove.websocket.connected_client.send_lossy"
+_SERVER_LOGGER = "foxglove.websocket.server"
+_OVERFLOW = re.compile(r"outbox for client (\S+) full")
+_REGISTERED = re.compile(r"^(Registered|Unregistered) client (\S+)")
+
+
+def absolute(name: str, namespace: str = "/") -> str:
+    """Return the absolute topic name: ``rig_state`` in ``/rig1`` -> ``/rig1/rig_state``."""
+    if name.startswith("/"):
+        return name
+    ns = namespace.strip("/")
+    return f"/{ns}/{name}" if ns else f"/{name}"
+
+
+class _SdkLogTap(logging.Handler):
+    """Count the SDK's overflow and client (un)registration log records."""
+
+    def __init__(self, owner: DashboardServer):
+        super().__init__(level=logging.INFO)
+        self._owner = owner
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            self._owner._on_sdk_log(record.getMessage())
+        except Exception:  # noqa: BLE001 - a log handler must never raise into the SDK
+            self.handleError(record)
+
+
+class _Listener:
+    """foxglove ``ServerListener``: track subscriptions per client (ids only)."""
+
+    def __init__(self, owner: DashboardServer):
+        self._owner = owner
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        self._owner._on_subscription(client.id, channel.topic, +1)
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        self._owner._on_subscription(client.id, channel.topic, -1)
+
+
+class DashboardServer:
+    """Foxglove WebSocket server with one ``cdr``/``ros2msg`` channel per dashboard topic.
+
+    Args:
+        host: bind address (default ``127.0.0.1``: this machine only; ``0.0.0.0`` for all).
+        port: TCP port (default 8765; 0 picks a free one, see :attr:`port`).
+        backlog: messages queued per client before its oldest are dropped [messages].
+        topics: the topics to serve (default :data:`~clutch_ros.dashboard.topics.TOPICS`).
+        namespace: ROS namespace that relative topic names resolve in (default ``/``).
+        name: server name shown by Foxglove.
+
+    Raises:
+        DashboardError: the server cannot listen on ``host:port`` or ``backlog`` < 1.
+
+    Use as a context manager or call :meth:`close`.
+    """
+
+    def __init__(
+        self,
+        host: str = DEFAULT_HOST,
+        port: int = DEFAULT_PORT,
+        *,
+        backlog: int = DEFAULT_BACKLOG,
+        topics: Iterable[DashboardTopic] = TOPICS,
+        namespace: str = "/",
+        name: str = "clutch_ros dashboard",
+    ):
+        import foxglove
+
+        if int(backlog) < 1:
+            raise DashboardError(f"message backlog must be >= 1 message, not {backlog}")
+        if not 0 <= int(port) <= 65535:
+            raise DashboardError(f"port {port} is not a TCP port (0..65535)")
+        self.backlog = int(backlog)
+        self._lock = threading.Lock()
+        self._forwarded: dict[str, int] = {}
+        self._subscriptions: dict[int, set[str]] = {}
+        self._clients: set[str] = set()
+        self._connections = 0
+        self._overflows: dict[str, int] = {}
+        self._tap = _SdkLogTap(self)
+        self._attach_tap()
+        self._context = foxglove.Context()
+        self.channels: dict[str, Any] = {}
+        self.typenames: dict[str, str] = {}
+        for topic in topics:
+            abs_name = absolute(topic.name, namespace)
+            self.channels[abs_name] = foxglove.Channel(
+                abs_name,
+                schema=foxglove.Schema(
+                    name=topic.typename,
+                    encoding=SCHEMA_ENCODING,
+                    data=message_definition(topic.typename).encode("utf-8"),
+                ),
+                message_encoding=MESSAGE_ENCODING,
+                context=self._context,
+            )
+            self.typenames[abs_name] = topic.typename
+            self._forwarded[abs_name] = 0
+        try:
+            self._server = foxglove.start_server(
+                name=name,
+                host=host,
+                port=int(port),
+                context=self._context,
+                server_listener=_Listener(self),
+                message_backlog_size=self.backlog,
+            )
+        except Exception as err:  # noqa: BLE001 - the SDK raises its own error types
+            self._detach_tap()
+            raise DashboardError(f"cannot serve on {host}:{port}: {err}") from err
+        self.host = host
+        self.started = time.monotonic()
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    @property
+    def port(self) -> int:
+        """The TCP port the server listens on (the chosen one when started with port 0)."""
+        return int(self._server.port)
+
+    @property
+    def url(self) -> str:
+        """``ws://HOST:PORT`` to open in Foxglove (``localhost`` for a wildcard bind)."""
+        host = "localhost" if self.host in ("0.0.0.0", "::", "") else self.host
+        return f"ws://{host}:{self.port}"
+
+    def close(self) -> None:
+        """Stop the server (clients are disconnected) and close the channels."""
+        server, self._server = getattr(self, "_server", None), None
+        if server is not None:
+            server.stop()
+            for channel in self.channels.values():
+                channel.close()
+        self._detach_tap()
+
+    def __enter__(self) -> DashboardServer:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # -- data --------------------------------------------------------------------------------
+    def publish(self, topic: str, data: bytes, log_time_ns: int | None = None) -> None:
+        """Send one CDR-encoded message on ``topic`` to its subscribed clients; never blocks.
+
+        Args:
+            topic: absolute topic name (a key of :attr:`channels`).
+            data: the serialized message, CDR with its 4-byte encapsulation header.
+            log_time_ns: the message's log time [ns since epoch] (default: now).
+
+        Raises:
+            DashboardError: ``topic`` is not served.
+
+        """
+        channel = self.channels.get(topic)
+        if channel is None:
+            raise DashboardError(f"topic {topic} is not served (served: "
+                                 f"{', '.join(self.channels)})")
+        channel.log(bytes(data), log_time=time.time_ns() if log_time_ns is None else log_time_ns)
+        self._forwarded[topic] += 1
+
+    def has_subscribers(self, topic: str) -> bool:
+        """Return True when at least one client is subscribed to ``topic``."""
+        channel = self.channels.get(topic)
+        return channel is not None and channel.has_sinks()
+
+    # -- health ------------------------------------------------------------------------------
+    def status(self) -> tuple[str, str, dict[str, Any]]:
+        """Return ``(level, message, values)`` for ``/diagnostics``.
+
+        Values: ``url``, ``clients`` (connected now), ``connections`` (since start),
+        ``subscriptions``, ``message_backlog`` [messages per client], ``forwarded_<topic>``
+        [messages], ``outbox_full_events`` (SDK overflow reports: each means that client's
+        oldest queued messages were dropped), ``outbox_full_clients`` (their addresses).
+        Level ``WARN`` once a client's queue overflowed.
+        """
+        with self._lock:
+            values: dict[str, Any] = {
+                "url": self.url,
+                "clients": len(self._clients),
+                "connections": self._connections,
+                "subscriptions": sum(len(s) for s in self._subscriptions.values()),
+                "message_backlog": self.backlog,
+            }
+            overflows = dict(self._overflows)
+        for topic, count in self._forwarded.items():
+            values[f"forwarded_{topic.strip('/').replace('/', '_')}"] = count
+        values["outbox_full_events"] = sum(overflows.values())
+        values["outbox_full_clients"] = " ".join(sorted(overflows)) or "none"
+        if overflows:
+            return ("WARN", f"{len(overflows)} slow client(s) lost their oldest queued messages "
+                    f"(queue {self.backlog} messages)", values)
+        return "OK", f"serving {values['clients']} client(s) on {self.url}", values
+
+    def _on_subscription(self, client_id: int, topic: str, delta: int) -> None:
+        with self._lock:
+            subs = self._subscriptions.setdefault(client_id, set())
+            if delta > 0:
+                subs.add(topic)
+            else:
+                subs.discard(topic)
+                if not subs:
+                    del self._subscriptions[client_id]
+
+    def _on_sdk_log(self, text: str) -> None:
+        match = _OVERFLOW.search(text)
+        with self._lock:
+            if match:
+                addr = match.group(1)
+                self._overflows[addr] = self._overflows.get(addr, 0) + 1
+                return
+            match = _REGISTERED.search(text)
+            if match and match.group(1) == "Registered":
+                self._clients.add(match.group(2))
+                self._connections += 1
+            elif match:
+                self._clients.discard(match.group(2))
+
+    def _attach_tap(self) -> None:
+        for name in (_OVERFLOW_LOGGER, _SERVER_LOGGER):
+            logger = logging.getLogger(name)
+            if logger.getEffectiveLevel() > logging.INFO:
+                logger.setLevel(logging.INFO)
+            logger.addHandler(self._tap)
+
+    def _detach_tap(self) -> None:
+        for name in (_OVERFLOW_LOGGER, _SERVER_LOGGER):
+            logging.getLogger(name).removeHandler(self._tap)

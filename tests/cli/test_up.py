@@ -1,0 +1,167 @@
+"""The launch files and ``clutch up``: static checks and the simulated chain in real processes.
+
+Static: every ``<node>`` of ``launch/*.launch.xml`` names an executable ``setup.py`` installs
+(as ``clutch_ros.nodes.<exec>:main``), every ``<param name>`` is a parameter that node
+declares, and every parameter file loads. Live: ``clutch up launch/sim.launch.xml`` on a
+private multicast group and ROS domain brings up rig_sim, can_bridge, estimator and
+controller as processes; rig_state and clutch_estimate arrive over DDS in this process; a
+SIGTERM stops every node and ``clutch up`` exits 0.
+"""
+
+import ast
+import os
+import re
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from clutch_ros.cli import up
+from clutch_ros.config.launch_file import LaunchFileError, load_launch, parse_overrides
+from clutch_ros.config.params_file import load_flat, load_params
+from clutch_ros.nodes.model_params import model_param_specs
+from tests.canbus.recorder import private_group
+from tests.conftest import REPO
+from tests.nodes.rclpy_harness import Harness
+
+LAUNCH_FILES = sorted((REPO / "launch").glob("*.launch.xml"))
+#: argument sets that together reach every node entry (rig: the recorder is conditional)
+VARIANTS = {"sim.launch.xml": [{}], "rig.launch.xml": [{}, {"record": "true"}]}
+
+
+def _setup_nodes() -> dict[str, str]:
+    """Return setup.py's NODES table, read with ast (setup.py is not importable)."""
+    tree = ast.parse((REPO / "setup.py").read_text())
+    for stmt in tree.body:
+        if isinstance(stmt, ast.Assign) and getattr(stmt.targets[0], "id", "") == "NODES":
+            return ast.literal_eval(stmt.value)
+    raise AssertionError("setup.py has no NODES table")
+
+
+def _descriptions():
+    for path in LAUNCH_FILES:
+        for overrides in VARIANTS[path.name]:
+            yield path, load_launch(path, overrides)
+
+
+def test_launch_files_exist_and_setup_installs_them():
+    assert {p.name for p in LAUNCH_FILES} == set(VARIANTS)
+    assert 'glob("launch/*.launch.xml")' in (REPO / "setup.py").read_text()
+
+
+def test_every_node_entry_names_an_installed_executable():
+    nodes = _setup_nodes()
+    assert tuple(nodes) == up.NODE_EXECUTABLES
+    seen = set()
+    for path, desc in _descriptions():
+        assert desc.nodes, path
+        for node in desc.nodes:
+            assert node.pkg == "clutch_ros", (path, node)
+            assert nodes.get(node.executable) == f"clutch_ros.nodes.{node.executable}:main", \
+                (path, node.executable)
+            seen.add((path.name, node.executable))
+    assert ("rig.launch.xml", "recorder") in seen  # record:=true reached the conditional node
+    assert {e for f, e in seen if f == "sim.launch.xml"} == {
+        "rig_sim", "can_bridge", "estimator", "controller"}
+
+
+def test_every_parameter_is_declared_and_every_parameter_file_loads():
+    for path, desc in _descriptions():
+        for node in desc.nodes:
+            module = __import__(f"clutch_ros.nodes.{node.executable}", fromlist=["PARAMS"])
+            declared = {s.name for s in module.PARAMS} | {s.name for s in model_param_specs()}
+            for name, _ in node.params:
+                assert name in declared, f"{path.name}: {node.executable} has no parameter {name}"
+            for file in node.param_files:
+                assert load_flat(file), file
+                load_params(file)  # the model keys validate
+            if node.executable == "rig_sim":
+                rig_file = dict(node.params)["rig.params_file"]
+                load_params(rig_file)
+
+
+def test_arguments_substitute_into_the_command_lines():
+    desc = load_launch(REPO / "launch" / "rig.launch.xml",
+                       {"interface": "pcan", "channel": "PCAN_USBBUS1", "namespace": "/rig1"})
+    bridge = next(n for n in desc.nodes if n.executable == "can_bridge")
+    args = bridge.ros_args()
+    assert args[:5] == ["--ros-args", "-r", "__node:=can_bridge", "-r", "__ns:=/rig1"]
+    assert "can.interface:=pcan" in args and "can.channel:=PCAN_USBBUS1" in args
+    assert bridge.full_name == "/rig1/can_bridge"
+    assert [n.executable for n in desc.nodes] == ["can_bridge", "estimator", "controller"]
+    est = next(n for n in desc.nodes if n.executable == "estimator")
+    assert Path(est.param_files[0]).resolve() == (REPO / "params" / "flexiforce_8.yaml")
+
+
+@pytest.mark.parametrize(("text", "overrides", "message"), [
+    ("<launch><arg name='a'/></launch>", {}, "argument a is required"),
+    ("<launch><arg name='a' default='1'/></launch>", {"b": "2"}, "unknown argument(s) b"),
+    ("<launch><include file='x'/></launch>", {}, "unsupported element"),
+    ("<launch><node pkg='clutch_ros' exec='estimator' respawn='true'/></launch>", {},
+     "unsupported attribute(s) respawn"),
+    ("<launch><node pkg='clutch_ros' exec='$(var nope)'/></launch>", {},
+     "$(var nope) is not a declared argument"),
+    ("<launch><node pkg='clutch_ros' exec='$(command ls)'/></launch>", {},
+     "unsupported substitution"),
+    ("<launch><arg name='r' default='maybe'/>"
+     "<node pkg='clutch_ros' exec='recorder' if='$(var r)'/></launch>", {}, "not true or false"),
+    ("<launch", {}, "not well-formed XML"),
+])
+def test_unsupported_or_bad_launch_files_are_refused(tmp_path, text, overrides, message):
+    path = tmp_path / "x.launch.xml"
+    path.write_text(text)
+    with pytest.raises(LaunchFileError) as err:
+        load_launch(path, overrides)
+    assert message in str(err.value)
+
+
+def test_bad_command_line_is_one_line_and_exit_2(tmp_path):
+    assert parse_overrides(["a:=1", "b.c:=x:=y"]) == {"a": "1", "b.c": "x:=y"}
+    cases = [(["up", "nope.launch.xml"], "no such launch file"),
+             (["up", "sim.launch.xml", "channel=1"], "is not name:=value"),
+             (["up", "sim.launch.xml", "params_file:=/no/such.yaml", "--print"],
+              "parameter file /no/such.yaml not found")]
+    for argv, text in cases:
+        done = subprocess.run([sys.executable, "-m", "clutch_ros.cli", *argv], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 2, (argv, done.stderr)
+        assert done.stderr.count("\n") == 1 and text in done.stderr, (argv, done.stderr)
+
+
+@pytest.mark.ros
+def test_clutch_up_sim_brings_up_the_chain_and_stops_on_sigterm(tmp_path, ros_env):
+    from clutch_msgs.msg import ClutchEstimate, RigState
+
+    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+
+    group, port = private_group()
+    cmd = [sys.executable, "-m", "clutch_ros.cli", "up", "sim.launch.xml", f"channel:={group}",
+           f"port:={port}", "--log-dir", str(tmp_path / "logs")]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, env=ros_env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        with Harness("up_probe") as h:
+            states = h.collect(RigState, "rig_state", sensor_qos())
+            estimates = h.collect(ClutchEstimate, "clutch_estimate", reliable_qos())
+            h.spin_until(lambda: len(states) >= 20 and len(estimates) >= 20, 25.0,
+                         "rig_state and clutch_estimate from the launched chain")
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            out, err = proc.communicate(timeout=25)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+    assert proc.returncode == 0, err
+    pids = [int(p) for p in re.findall(r"pid (\d+)\)", err)]
+    names = re.findall(r"started (\S+) \(", err)
+    assert names == ["/rig_sim", "/can_bridge", "/estimator", "/controller"], err
+    for pid in pids:  # every node process is gone (reaped by clutch up)
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
+    assert "all nodes stopped (exit code 0)" in err
+    assert all(e.modelled_torque == e.modelled_torque for e in estimates)  # finite, not NaN
+    assert {p.name for p in (tmp_path / "logs").iterdir()} == {
+        "rig_sim.log", "can_bridge.log", "estimator.log", "controller.log"}
