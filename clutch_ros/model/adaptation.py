@@ -34,7 +34,8 @@ is a linearisation (an extended-Kalman-style update) and is offered only for law
 force, so the gain is not identifiable there).
 
 Guards (per sample; any failing one pauses or freezes adaptation, the estimate goes on):
-a measurement must be present (``has_measured_torque``; NaN = absent) and plausible (finite,
+a measurement must be present (``has_measured_torque``; NaN = absent; missing for longer
+than ``dropout_grace`` it is a dropout, shorter only a late frame) and plausible (finite,
 same sign as the model, ``|y| / |T_1|`` within ``[scale_min, scale_max]`` widened by
 ``plausibility_margin``, where ``T_1`` is the model torque at ``s = 1``); after a dropout or
 an implausible value it must be plausible for ``recover_time`` before adapting resumes;
@@ -123,6 +124,9 @@ class AdaptationSettings:
             transients last about spline.time_constant, ~1 s)
         plausibility_margin: widening of the scale bounds for the plausibility check [1]
         recover_time: plausible measurements needed after a dropout before adapting [s]
+        dropout_grace: a measurement missing for up to this long only pauses adaptation (a
+            late CAN frame: the bridge marks a stale torque frame as no measurement); longer,
+            it is a dropout: frozen, with a diagnostic [s]
         apply_tolerance: re-apply the parameters when a scale moved by this fraction [1]
         apply_interval: ... and at most this often [s] (each application re-discretises
             the pack, a matrix exponential of ~1-10 ms)
@@ -147,6 +151,7 @@ class AdaptationSettings:
     settle_time: float = 1.0
     plausibility_margin: float = 0.25
     recover_time: float = 0.5
+    dropout_grace: float = 0.25
     apply_tolerance: float = 2e-3
     apply_interval: float = 1.0
     spline_gain: bool = False
@@ -169,6 +174,7 @@ class AdaptationSettings:
             "settle_time": self.settle_time >= 0.0,
             "plausibility_margin": self.plausibility_margin >= 0.0,
             "recover_time": self.recover_time >= 0.0,
+            "dropout_grace": self.dropout_grace >= 0.0,
             "apply_tolerance": self.apply_tolerance >= 0.0,
             "apply_interval": self.apply_interval >= 0.0,
             "gain_min": 0.0 < self.gain_min <= 1.0, "gain_max": 1.0 <= self.gain_max,
@@ -313,6 +319,7 @@ class _Guard:
     last_torque: float | None = None
     last_stamp: float | None = None
     last_fast: float = -math.inf
+    missing_since: float | None = None
     counts: dict = field(default_factory=lambda: {"adapting": 0, "paused": 0, "frozen": 0,
                                                   "waiting": 0, "off": 0,
                                                   "dropouts": 0, "implausible": 0})
@@ -387,12 +394,23 @@ class AdaptiveEstimator:
         self.estimator.reset()
         self._shadow = None
         g = self._guard
-        g.last_stamp = g.last_torque = g.plausible_since = None
+        g.last_stamp = g.last_torque = g.plausible_since = g.missing_since = None
         g.last_fast = -math.inf
 
     def set_enabled(self, enabled: bool) -> None:
         """Switch adaptation on or off at runtime (what was learned is kept either way)."""
-        self.settings = replace(self.settings, enabled=bool(enabled))
+        self.set_settings(replace(self.settings, enabled=bool(enabled)))
+
+    def set_settings(self, settings: AdaptationSettings) -> None:
+        """Apply new settings at runtime: new bounds clip the estimates, the rest is kept."""
+        self.settings = settings
+        f = self.filter
+        f.lower[0], f.upper[0] = settings.scale_min, settings.scale_max
+        f.lower[1], f.upper[1] = settings.gain_min, settings.gain_max
+        f.theta[0] = min(max(f.theta[0], f.lower[0]), f.upper[0])
+        f.theta[1] = min(max(f.theta[1], f.lower[1]), f.upper[1])
+        self.gain_identifiable = settings.spline_gain and self.base_params.spline.law in GAIN_LAWS
+        self._apply(force=True)
 
     def _apply(self, now: float | None = None, force: bool = False) -> None:
         theta = self.filter.theta
@@ -482,14 +500,20 @@ class AdaptiveEstimator:
         if not s.enabled:
             return self._finish(False, "off", "adaptation off")
         if math.isnan(y):
-            g.plausible_since, g.implausible = None, False
+            g.implausible = False
             if not g.seen_measurement:
                 return self._finish(False, "waiting", "no torque measurement yet")
+            if g.missing_since is None:
+                g.missing_since = t
+            if t - g.missing_since <= s.dropout_grace:
+                return self._finish(False, "paused", "torque measurement missing")
+            g.plausible_since = None
             if not self.status.reason.startswith("torque measurement dropped"):
                 g.counts["dropouts"] += 1
             return self._finish(False, "frozen", "torque measurement dropped out; "
                                 "adapted values kept")
         g.seen_measurement = True
+        g.missing_since = None
         if rate > s.max_torque_rate:
             g.last_fast = t
         settled = t - g.last_fast >= s.settle_time

@@ -42,7 +42,8 @@ Limits and rate limits on the pressure are the caller's (node parameters).
   clamped (pressure or rate limits) in the direction the error pushes and for ``trim_delay``
   after a step of the request (the pack's step transient is the model dynamics' error);
   it is released to 0 at a step when ``trim_reset_on_change``, without a torque measurement
-  (off: the adapted model alone), with ``trim_rate`` 0 and at a 0 N m request. The trimmed
+  for longer than ``trim_hold`` (off: the adapted model alone; a shorter gap, a late CAN
+  frame, only holds it), with ``trim_rate`` 0 and at a 0 N m request. The trimmed
   pressure still goes through the pressure limits, so it never leaves them;
   :attr:`ControllerOutput.trim_pressure` is the trim's share of the published pressure.
 """
@@ -127,6 +128,8 @@ class ControllerSettings:
         trim_rate: integral gain of the torque trim, 1/its time constant [1/s]; 0 = off
         trim_limit: bound of the trim, a fraction of the request [1]
         trim_delay: the trim holds this long after a step of the request [s]
+        trim_hold: a torque measurement missing for up to this long holds the trim (a late
+            CAN frame); longer, the trim is released (off without a measurement) [s]
         step_threshold: a request change above this fraction of the request is a step
             (ramps move by less per tick) [1]
         scale_tolerance: re-invert with a new friction scale when it moved by this [1]
@@ -153,6 +156,7 @@ class ControllerSettings:
     trim_rate: float = 5.0
     trim_limit: float = 0.15
     trim_delay: float = 0.3
+    trim_hold: float = 0.25
     step_threshold: float = 0.02
     scale_tolerance: float = 1e-3
     trim_reset_on_change: bool = True
@@ -169,6 +173,7 @@ class ControllerSettings:
                   "trim_rate": self.trim_rate >= 0.0,
                   "trim_limit": 0.0 <= self.trim_limit <= 1.0,
                   "trim_delay": self.trim_delay >= 0.0,
+                  "trim_hold": self.trim_hold >= 0.0,
                   "step_threshold": self.step_threshold >= 0.0,
                   "scale_tolerance": self.scale_tolerance >= 0.0,
                   "min_pressure": 0.0 <= self.min_pressure <= self.max_pressure}
@@ -219,6 +224,7 @@ class TorqueController:
         self._history: list[tuple[float, float]] = []
         self._pending: tuple[float, float] | None = None
         self._moved = True  # the request changed since the last tick
+        self._missing_for = 0.0  # [s] the torque measurement has been missing this long
 
     def set_base_params(self, params) -> None:
         """Replace the model parameters (scale 1); the adapted scales are re-applied."""
@@ -298,7 +304,10 @@ class TorqueController:
             return "trim off"
         if not (math.isfinite(measured_torque) and math.isfinite(modelled_torque)
                 and modelled_scale > 0.0):
-            return "no torque measurement"
+            self._missing_for += s.period
+            held = self._missing_for <= s.trim_hold + 1e-9  # float sum of periods
+            return "hold" if held else "no torque measurement"
+        self._missing_for = 0.0
         if self.request <= 0.0:
             return "no request"
         if self._now - self._changed_at < s.trim_delay:

@@ -66,8 +66,13 @@ def test_trim_off_without_measurement(flexiforce):
 def test_trim_released_when_the_measurement_drops_out(flexiforce):
     s = ControllerSettings(rise_rate_limit=1e9, fall_rate_limit=1e9)
     ctl, _ = _static_loop(flexiforce, s, 600.0, 1.1)
-    assert ctl.trim != 0.0
-    out = ctl.update(TEMP, W10, 0.0, math.nan, 600.0)
+    held = ctl.trim
+    assert held != 0.0
+    ticks = round(s.trim_hold / s.period)
+    for _ in range(ticks):  # a late frame or two: the trim holds
+        out = ctl.update(TEMP, W10, 0.0, math.nan, 600.0)
+        assert ctl.trim == held and out.trim_pressure != 0.0
+    out = ctl.update(TEMP, W10, 0.0, math.nan, 600.0)  # longer: released
     assert ctl.trim == 0.0 and out.trim_pressure == 0.0
 
 
