@@ -37,7 +37,7 @@ ROSDEP_KEYS = {
     "hypothesis": "python3-hypothesis",
 }
 #: modules with no rosdep key: installed with pip as README.md says
-PIP_ONLY = {"asammdf": "asammdf==8.8.28"}
+PIP_ONLY = {"asammdf": "asammdf==8.8.28", "foxglove": "foxglove-sdk==0.30.3"}
 #: modules the package imports only as what a declared package installs: module -> why
 PROVIDED = {
     "lz4": "python3-rosbags-pip (a rosbags dependency; lz4-compressed MCAP chunks)",

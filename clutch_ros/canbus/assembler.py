@@ -5,7 +5,8 @@
 from any other thread (the ROS timer). One lock guards the small per-frame update; decoding
 happens outside of it. A frame that cannot be decoded is counted and never stops the next.
 
-Signal groups and the ``stale_mask`` bits (one group per DBC frame):
+Signal groups and the ``stale_mask`` bits (:data:`clutch_ros.canbus.signal_map.GROUPS`; the
+frames are those the signal map names, here the default map of ``params/rig.dbc``):
 
 ===  ==================  =================  =========  ==================================
 bit  group               frame              required   RigState fields
@@ -20,15 +21,17 @@ bit  group               frame              required   RigState fields
 7    ``torque_request``   TorqueRequest      no         torque_request
 ===  ==================  =================  =========  ==================================
 
-A group is stale when it is older than its maximum age (default: 5 cycle times, at least
-10 ms: 10 ms for 1 ms frames, 50 ms for 10 ms frames, 500 ms for RigTemperatures), when it
-is required and was never received, when its newest frame held a value outside the DBC
-signal's range (that frame is counted as decode error ``range`` and its values are not used:
-the sample keeps the group's last valid values, flagged), or when a field it fills is NaN
-because it never arrived while a sibling did (``ff_voltages`` with only the rear FlexiForce
-frame: the front group is flagged). So every non-finite value of a sample is flagged, and
-every flagged group's values are either the last valid ones or NaN. Optional groups never
-received and without a sibling are not stale; their arrays stay empty.
+A group fed by several frames (a rig DBC may put pressure and torque in two messages) is as old
+as its oldest frame and stale while one of them is missing; a group the map leaves unmapped is
+never stale. A group is stale when it is older than its maximum age (default: 5 cycle times, at
+least 10 ms: 10 ms for 1 ms frames, 50 ms for 10 ms frames, 500 ms for RigTemperatures), when it
+is required and was never received, when its newest frame held a value outside the DBC signal's
+range (that frame is counted as decode error ``range`` and its values are not used: the sample
+keeps the group's last valid values, flagged), or when a field it fills is NaN because it never
+arrived while a sibling did (``ff_voltages`` with only the rear FlexiForce frame: the front
+group is flagged). So every non-finite value of a sample is flagged, and every flagged group's
+values are either the last valid ones or NaN. Optional groups never received and without a
+sibling are not stale; their arrays stay empty.
 
 Data path: :meth:`RigStateAssembler.feed` decodes a frame and writes its values straight into
 the live sample (one dict lookup for the frame key, no re-assembly);
@@ -50,11 +53,11 @@ import can
 from clutch_ros.canbus.counters import CounterSnapshot, FrameCounters, classify_socketcan_error
 from clutch_ros.canbus.dbc import RigDatabase, counter_gap, frame_key
 from clutch_ros.canbus.errors import FrameDecodeError
+from clutch_ros.canbus.signal_map import GROUPS, ResolvedMap, SignalMap, Write
 from clutch_ros.errors import ConfigError
-from clutch_ros.rigstate import FF_SIGNALS, FIELDS, WHEEL_SIGNALS, RigSample
+from clutch_ros.rigstate import FIELDS, RigSample
 
 __all__ = [
-    "DEFAULT_GROUPS",
     "RigSample",
     "RigStateAssembler",
     "SignalGroup",
@@ -63,30 +66,21 @@ __all__ = [
 
 @dataclass(frozen=True)
 class SignalGroup:
-    """A group of signals sharing one frame: ``bit`` in ``stale_mask``, ``max_age`` [s]."""
+    """A group of signals: ``bit`` in ``stale_mask``, ``max_age`` [s], its DBC ``messages``."""
 
     name: str
-    message: str
+    messages: tuple[str, ...]
     bit: int
     max_age: float
     required: bool
 
+    @property
+    def message(self) -> str:
+        """The first DBC message of the group ("" when the map leaves it unmapped)."""
+        return self.messages[0] if self.messages else ""
 
-#: (group name, DBC message, required) in stale_mask bit order.
-DEFAULT_GROUPS: tuple[tuple[str, str, bool], ...] = (
-    ("pressure_torque", "RigFast", True),
-    ("shaft_speeds", "RigSpeed", True),
-    ("temperatures", "RigTemperatures", True),
-    ("pump_status", "PumpStatus", True),
-    ("ff_front", "FlexiForceFront", False),
-    ("ff_rear", "FlexiForceRear", False),
-    ("wheel_speeds", "WheelSpeeds", False),
-    ("torque_request", "TorqueRequest", False),
-)
 
-_FF_FRONT, _FF_REAR = (names for _, names in FF_SIGNALS)
-_FF_MESSAGES = tuple(message for message, _ in FF_SIGNALS)
-_WHEELS = WHEEL_SIGNALS[1]
+_ARRAY_LEN = {f.name: len(f.csv_stems) for f in FIELDS if f.kind == "array"}
 _PUMP_FAULTS = (
     "PumpSts_FltOverCurrent",
     "PumpSts_FltOverTemp",
@@ -99,8 +93,6 @@ _PUMP_FAULTS = (
 _NAN = float("nan")
 
 
-
-
 class RigStateAssembler(can.Listener):
     """Keep the latest decoded value of every rig signal and build :class:`RigSample`.
 
@@ -109,7 +101,8 @@ class RigStateAssembler(can.Listener):
     error class in their identifier (true for the socketcan interface only), so bus-off and
     controller-overflow error frames are counted apart. Raises
     :class:`clutch_ros.errors.ConfigError` for unknown group names or non-positive ages,
-    :class:`DbcError` when the DBC lacks a group's frame.
+    :class:`DbcError` when the DBC lacks a frame or signal of ``signal_map`` (default: the
+    map of ``params/rig.dbc``, :class:`~clutch_ros.canbus.signal_map.SignalMap`).
     """
 
     def __init__(
@@ -118,34 +111,33 @@ class RigStateAssembler(can.Listener):
         max_ages: Mapping[str, float] | None = None,
         required: Iterable[str] | None = None,
         socketcan_error_frames: bool = False,
+        signal_map: SignalMap | None = None,
     ) -> None:
         self.db = db if db is not None else RigDatabase()
+        #: the signal map checked against the DBC (also gives the pump request codec)
+        self.map: ResolvedMap = (signal_map or SignalMap.default()).resolve(self.db)
         max_ages = dict(max_ages or {})
-        names = {name for name, _, _ in DEFAULT_GROUPS}
+        names = {name for name, _, _ in GROUPS}
         required_set = set(required) if required is not None else None
         for name in set(max_ages) | (required_set or set()):
             if name not in names:
                 raise ConfigError(f"unknown signal group {name!r}; known: {sorted(names)}")
         groups = []
-        for bit, (name, message, req) in enumerate(DEFAULT_GROUPS):
-            spec = self.db.frame(message)
-            default_age = max(5.0 * (spec.cycle_time or 0.1), 0.01)
-            age = float(max_ages.get(name, default_age))
+        for bit, (name, keys, req) in enumerate(GROUPS):
+            messages = self.map.group_messages(keys)
+            cycle = max((self.db.frame(m).cycle_time or 0.1 for m in messages), default=0.1)
+            age = float(max_ages.get(name, max(5.0 * cycle, 0.01)))
             if not (math.isfinite(age) and age > 0.0):
                 raise ConfigError(f"max age of {name} must be > 0 s, got {age!r}")
-            groups.append(
-                SignalGroup(
-                    name=name,
-                    message=message,
-                    bit=bit,
-                    max_age=age,
-                    required=req if required_set is None else name in required_set,
-                )
-            )
+            groups.append(SignalGroup(name=name, messages=messages, bit=bit, max_age=age,
+                                      required=req if required_set is None
+                                      else name in required_set))
         self.groups: tuple[SignalGroup, ...] = tuple(groups)
-        #: frame key -> its group (rig frames only)
-        self._group_of = {self.db.frame(g.message).key: g for g in self.groups}
-        self._fill = {key: _filler(g.message) for key, g in self._group_of.items()}
+        #: frame key -> the writer of its mapped signals (rig frames only)
+        self._fill = {key: _filler(writes) for key, writes in self.map.writes.items()}
+        #: group name -> keys of its frames
+        self._group_keys = {g.name: tuple(self.db.frame(m).key for m in g.messages)
+                            for g in self.groups}
         self._sibling = {"ff_front": "ff_rear", "ff_rear": "ff_front"}
         self._counter_signal = {
             spec.key: spec.counter_signal for spec in self.db.frames if spec.counter_signal
@@ -156,8 +148,8 @@ class RigStateAssembler(can.Listener):
         self._lock = threading.Lock()
         self._counters = FrameCounters()
         self._live = RigSample()
-        self._stamps: dict[str, float] = {}  # group -> bus time [s] of its newest valid frame
-        self._rejected: set[str] = set()  # groups whose newest frame was out of range
+        self._stamps: dict[int, float] = {}  # rig frame key -> bus time [s] of its newest valid
+        self._rejected: set[int] = set()  # rig frame keys whose newest frame was out of range
         self._last_counter: dict[int, tuple[float, int]] = {}
         self._newest_time: float | None = None
 
@@ -210,19 +202,18 @@ class RigStateAssembler(can.Listener):
                 c.decode_errors[reason] += 1
                 if reason == "range":  # an intact frame: its counter still counts
                     self._track_counter(key, stamp, values)
-                    group = self._group_of.get(key)
-                    if group is not None:
-                        self._rejected.add(group.name)
+                    if key in self._fill:
+                        self._rejected.add(key)
                 return key
             c.decoded_frames += 1
             self._track_counter(key, stamp, values)
             if self._newest_time is None or stamp > self._newest_time:
                 self._newest_time = stamp
-            group = self._group_of.get(key)
-            if group is not None:
-                self._fill[key](self._live, values)
-                self._stamps[group.name] = stamp
-                self._rejected.discard(group.name)
+            fill = self._fill.get(key)
+            if fill is not None:
+                fill(self._live, values)
+                self._stamps[key] = stamp
+                self._rejected.discard(key)
         return key
 
     def _track_counter(self, key: int, stamp: float, values) -> None:
@@ -288,15 +279,23 @@ class RigStateAssembler(can.Listener):
         if now is None:
             now = newest if newest is not None else 0.0
         sample.ages, sample.stale, sample.stale_mask = {}, [], 0
+        received = {}
         for group in self.groups:
-            stamp = stamps.get(group.name)
-            age = math.inf if stamp is None else max(0.0, now - stamp)
-            sample.ages[group.name] = age
+            keys = self._group_keys[group.name]
+            seen = [stamps[k] for k in keys if k in stamps]
+            received[group.name] = bool(seen)
+            sample.ages[group.name] = max(0.0, now - min(seen)) if seen else math.inf
+        for group in self.groups:
+            keys = self._group_keys[group.name]
+            if not keys:
+                continue
+            seen = sum(k in stamps for k in keys)
             sibling = self._sibling.get(group.name)
             if (
-                (stamp is None and (group.required or (sibling in stamps)))
-                or (stamp is not None and age > group.max_age)
-                or group.name in rejected
+                (seen == 0 and (group.required or received.get(sibling, False)))
+                or 0 < seen < len(keys)
+                or (seen and sample.ages[group.name] > group.max_age)
+                or any(k in rejected for k in keys)
             ):
                 sample.stale_mask |= 1 << group.bit
                 sample.stale.append(group.name)
@@ -315,45 +314,43 @@ def _valid_frame(msg: can.Message) -> bool:
     return msg.is_remote_frame or msg.dlc == size
 
 
-def _scalar_writer(message: str) -> tuple[tuple[str, str], ...]:
-    """``(RigState field, DBC signal)`` pairs of the scalars frame ``message`` feeds."""
-    return tuple((f.name, f.dbc[1]) for f in FIELDS
-                 if f.kind == "scalar" and f.dbc is not None and f.dbc[0] == message)
+def _filler(writes: tuple[Write, ...]) -> Callable[[RigSample, Mapping[str, float | int]],
+                                                  None]:
+    """Return the function that writes one frame's decoded values into a sample.
 
+    Scalars and array elements get ``mult * value + offset``; ``has_measured_torque`` is the
+    mapped flag (else: the torque is finite), ``pump_state`` an int (its frame's
+    ``PumpSts_Flt*`` signals, when present, give ``pump_faults``), ``slip_speed`` is input minus
+    output speed unless mapped.
+    """
+    special = {"has_measured_torque", "pump_state"}
+    scalars = tuple((w.field, w.signal, w.mult, w.offset) for w in writes
+                    if w.index is None and w.field not in special)
+    elements = tuple((w.field, w.index, w.signal, w.mult, w.offset, _ARRAY_LEN[w.field])
+                     for w in writes if w.index is not None)
+    by_key = {w.key: w for w in writes}
+    valid = by_key["has_measured_torque"].signal if "has_measured_torque" in by_key else None
+    torque_only = valid is None and "measured_torque" in by_key
+    state = by_key["pump_state"].signal if "pump_state" in by_key else None
+    slip = "slip_speed" not in by_key and bool({"input_speed", "output_speed"} & set(by_key))
 
-def _filler(message: str) -> Callable[[RigSample, Mapping[str, float | int]], None]:
-    """Return the function that writes the decoded values of ``message`` into a sample."""
-    scalars = _scalar_writer(message)
-
-    def write_scalars(sample: RigSample, v: Mapping[str, float | int]) -> None:
-        for name, signal in scalars:
-            setattr(sample, name, float(v[signal]))
-
-    if message == "RigFast":
-        def fill(sample, v):
-            write_scalars(sample, v)
-            sample.has_measured_torque = bool(v["MeasuredTorqueValid"])
-    elif message == "RigSpeed":
-        def fill(sample, v):
-            write_scalars(sample, v)
+    def fill(sample: RigSample, v: Mapping[str, float | int]) -> None:
+        for name, signal, mult, offset in scalars:
+            setattr(sample, name, mult * v[signal] + offset)
+        for name, index, signal, mult, offset, size in elements:
+            values = getattr(sample, name)
+            if not values:
+                values = [_NAN] * size
+                setattr(sample, name, values)
+            values[index] = mult * v[signal] + offset
+        if valid is not None:
+            sample.has_measured_torque = bool(v[valid])
+        elif torque_only:
+            sample.has_measured_torque = math.isfinite(sample.measured_torque)
+        if state is not None:
+            sample.pump_state = int(v[state])
+            sample.pump_faults = sum(1 << i for i, n in enumerate(_PUMP_FAULTS) if v.get(n))
+        if slip:
             sample.slip_speed = sample.input_speed - sample.output_speed
-    elif message == "PumpStatus":
-        def fill(sample, v):
-            write_scalars(sample, v)
-            sample.pump_pressure = float(v["PumpSts_ActualPressure"])
-            sample.pump_state = int(v["PumpSts_State"])
-            sample.pump_faults = sum(1 << i for i, n in enumerate(_PUMP_FAULTS) if v[n])
-    elif message in (_FF_MESSAGES[0], _FF_MESSAGES[1]):
-        offset = 4 * _FF_MESSAGES.index(message)
-        signals = _FF_FRONT if offset == 0 else _FF_REAR
 
-        def fill(sample, v):
-            if not sample.ff_voltages:
-                sample.ff_voltages = [_NAN] * 8
-            sample.ff_voltages[offset:offset + 4] = [float(v[n]) for n in signals]
-    elif message == WHEEL_SIGNALS[0]:
-        def fill(sample, v):
-            sample.wheel_speeds = [float(v[n]) for n in _WHEELS]
-    else:
-        fill = write_scalars
     return fill

@@ -1,19 +1,10 @@
 """The rig's CAN database: strict DBC loading, SI decoding and encoding, E2E protection.
 
 The DBC (``params/rig.dbc``) carries bus units (bar, rpm, Nm, degC, V, A). This module is
-the one place where they are converted to and from SI:
-
-============  =========  ==================
-DBC unit      SI unit    factor (SI = f * bus)
-============  =========  ==================
-``bar``       Pa         1e5
-``rpm``       rad/s      2 pi / 60
-``Nm``        N m        1
-``degC``      degC       1 (temperatures stay in degrees Celsius, as in RigState)
-``V``         V          1
-``A``         A          1
-(none)        (none)     1 (counters, checksums, states, flags)
-============  =========  ==================
+the one place where they are converted to and from SI, with the factors of
+:data:`clutch_ros.canbus.units.UNIT_TO_SI` (``si = factor * bus``). A rig's own DBC may use
+units outside that table: loaded with ``strict_units=False`` such signals keep their bus
+value (factor 1, :attr:`SignalSpec.si_known` False) and a signal map must give their scale.
 
 Frames whose message attribute ``E2EChecksum`` is ``CRC8_SAE_J1850`` carry a 4-bit rolling
 counter (signal ``*_Counter``) and an 8-bit checksum in byte 0 (signal ``*_Checksum``): CRC-8
@@ -34,6 +25,7 @@ import cantools
 import cantools.database
 
 from clutch_ros.canbus.errors import DbcError, EncodeError, FrameDecodeError
+from clutch_ros.canbus.units import UNIT_TO_SI
 from clutch_ros.errors import ConfigError
 
 __all__ = [
@@ -43,17 +35,6 @@ __all__ = [
 
 #: Flag or-ed into a frame key for 29-bit identifiers (the SocketCAN ``CAN_EFF_FLAG``).
 CAN_EFF_FLAG = 0x80000000
-
-#: DBC unit -> (SI unit, factor): ``si_value = factor * bus_value``.
-UNIT_TO_SI: dict[str, tuple[str, float]] = {
-    "bar": ("Pa", 1e5),
-    "rpm": ("rad/s", 2.0 * math.pi / 60.0),
-    "Nm": ("N m", 1.0),
-    "degC": ("degC", 1.0),
-    "V": ("V", 1.0),
-    "A": ("A", 1.0),
-    "": ("", 1.0),
-}
 
 _E2E_ATTRIBUTE = "E2EChecksum"
 _E2E_CRC8 = "CRC8_SAE_J1850"
@@ -125,7 +106,8 @@ class SignalSpec:
     """One DBC signal with its SI conversion.
 
     ``factor`` converts bus to SI (``si = factor * bus``); ``minimum``/``maximum`` and
-    ``resolution`` are in SI units (``si_unit``); ``unit`` is the DBC unit.
+    ``resolution`` are in SI units (``si_unit``); ``unit`` is the DBC unit. ``si_known`` is
+    False for a unit outside :data:`UNIT_TO_SI` (then ``si_unit`` is the DBC unit, factor 1).
     """
 
     name: str
@@ -136,6 +118,7 @@ class SignalSpec:
     maximum: float | None
     resolution: float
     choices: Mapping[int, str]
+    si_known: bool = True
 
 
 @dataclass(frozen=True)
@@ -166,12 +149,14 @@ class RigDatabase:
     """The rig CAN database, loaded strictly, decoding to and encoding from SI values.
 
     ``path`` defaults to :func:`default_dbc_path`. Raises :class:`DbcError` naming the file
-    when it is missing, does not parse strictly, uses a unit outside :data:`UNIT_TO_SI`, or an
-    E2E frame lacks its checksum (8 bits at bit 0) or counter signal.
+    when it is missing, does not parse strictly, uses a unit outside :data:`UNIT_TO_SI`
+    (unless ``strict_units`` is False), or an E2E frame lacks its checksum (8 bits at bit 0)
+    or counter signal.
     """
 
-    def __init__(self, path: str | Path | None = None) -> None:
+    def __init__(self, path: str | Path | None = None, strict_units: bool = True) -> None:
         self.path = Path(path) if path is not None else default_dbc_path()
+        self.strict_units = strict_units
         try:
             self._db = cantools.database.load_file(str(self.path), strict=True)
         except FileNotFoundError as err:
@@ -209,12 +194,12 @@ class RigDatabase:
         signals = []
         for sig in message.signals:
             unit = sig.unit or ""
-            if unit not in UNIT_TO_SI:
+            if unit not in UNIT_TO_SI and self.strict_units:
                 raise DbcError(
                     f"{self.path}: signal {message.name}.{sig.name} has unit {unit!r}; "
                     f"known units: {sorted(UNIT_TO_SI)}"
                 )
-            si_unit, factor = UNIT_TO_SI[unit]
+            si_unit, factor = UNIT_TO_SI.get(unit, (unit, 1.0))
             signals.append(
                 SignalSpec(
                     name=sig.name,
@@ -225,6 +210,7 @@ class RigDatabase:
                     maximum=None if sig.maximum is None else sig.maximum * factor,
                     resolution=abs(sig.scale) * factor,
                     choices={int(k): str(v) for k, v in (sig.choices or {}).items()},
+                    si_known=unit in UNIT_TO_SI,
                 )
             )
         counter = next((s.name for s in message.signals if s.name.endswith("_Counter")), None)
@@ -417,18 +403,25 @@ class PumpRequestCodec:
     ``max_pressure`` [Pa] is the largest pressure :meth:`encode` accepts (default: the DBC
     maximum of ``PumpReq_Pressure``, 60 bar); it must not exceed the DBC maximum.
     ``resolution`` is 100 Pa (0.001 bar). Raises :class:`clutch_ros.errors.ConfigError` for a
-    bad ``max_pressure``.
+    bad ``max_pressure``. ``message`` and ``pressure`` name the frame and its pressure signal
+    (defaults: ``PumpRequest.PumpReq_Pressure`` of ``params/rig.dbc``); the signal's unit must
+    convert to Pa.
     """
 
     MESSAGE = "PumpRequest"
     PRESSURE = "PumpReq_Pressure"
 
-    def __init__(self, db: RigDatabase | None = None, max_pressure: float | None = None) -> None:
+    def __init__(self, db: RigDatabase | None = None, max_pressure: float | None = None,
+                 message: str | None = None, pressure: str | None = None) -> None:
         self.db = db if db is not None else RigDatabase()
+        self.MESSAGE, self.PRESSURE = message or self.MESSAGE, pressure or self.PRESSURE
         self.spec = self.db.frame(self.MESSAGE)
         if not self.spec.e2e or self.spec.counter_signal is None:
             raise DbcError(f"{self.db.path}: {self.MESSAGE} is not E2E protected")
         sig = self.db.signal(self.PRESSURE)
+        if sig.si_unit != "Pa" or sig.name not in {s.name for s in self.spec.signals}:
+            raise DbcError(f"{self.db.path}: {self.MESSAGE}.{self.PRESSURE} must be a pressure "
+                           f"signal of {self.MESSAGE} (unit bar, kPa, ...), has {sig.unit!r}")
         if sig.maximum is None or sig.minimum != 0.0:
             raise DbcError(f"{self.db.path}: {self.PRESSURE} must have the range [0|max]")
         self.resolution = sig.resolution

@@ -43,8 +43,9 @@ from clutch_ros.errors import ConfigError
 
 __all__ = ["REFUSAL_REASONS", "GateOutput", "PumpCommandGate", "PumpGateConfig"]
 
-#: Why :meth:`PumpCommandGate.submit` refuses a command (``"source"``: refused by the node).
-REFUSAL_REASONS = ("stale", "future", "out_of_order", "unstamped", "source")
+#: Why :meth:`PumpCommandGate.submit` refuses a command (``"source"``, ``"inactive"``: refused
+#: by the node, for a foreign publisher or while the node is not active).
+REFUSAL_REASONS = ("stale", "future", "out_of_order", "unstamped", "source", "inactive")
 
 _BAR = 1e5  # [Pa]
 
@@ -121,11 +122,7 @@ class PumpCommandGate:
             else PumpRequestCodec(max_pressure=self.config.max_pressure)
         )
         #: largest pressure a frame may request [Pa]: config and DBC limit, quantized down
-        self.max_pressure = self.codec.quantize(
-            min(self.config.max_pressure, self.codec.max_pressure)
-        )
-        if self.max_pressure > self.config.max_pressure:
-            self.max_pressure -= self.codec.resolution
+        self.max_pressure = self._max_pressure()
         self._clock = clock
         self._stamp_clock = stamp_clock
         self._last_stamp: float | None = None  # newest admitted stamp (out-of-order check)
@@ -152,6 +149,22 @@ class PumpCommandGate:
         #: frames produced / of them, immediate frames on a change (between ticks)
         self.frames = 0
         self.immediate_frames = 0
+
+    def _max_pressure(self) -> float:
+        limit = self.codec.quantize(min(self.config.max_pressure, self.codec.max_pressure))
+        return limit - self.codec.resolution if limit > self.config.max_pressure else limit
+
+    def reconfigure(self, config: PumpGateConfig) -> None:
+        """Apply new limits at once: the next frame (tick or command) obeys them.
+
+        A target above a lowered ``max_pressure`` is clamped now, with the reason; the rate
+        limit and the watchdog use the new values from the next frame on.
+        """
+        self.config = config
+        self.max_pressure = self._max_pressure()
+        if self._target > self.max_pressure:
+            self._set_target(self.max_pressure, f"clamped to max {self.max_pressure / _BAR:.3f} "
+                             "bar (pump.max_pressure lowered)", fail_safe=False)
 
     @property
     def applied_pressure(self) -> float:

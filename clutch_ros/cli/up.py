@@ -35,7 +35,7 @@ __all__ = ["NODE_EXECUTABLES", "add_parser", "resolve_launch_file", "run"]
 #: Executables this package installs (``setup.py`` NODES; a test keeps the two equal); each
 #: runs as ``python -m clutch_ros.nodes.<name>``.
 NODE_EXECUTABLES = ("can_bridge", "rig_sim", "estimator", "controller", "recorder",
-                    "bag_player")
+                    "bag_player", "dashboard")
 POLL_S = 0.2  # [s] how often the supervisor looks at its nodes
 
 

@@ -19,7 +19,23 @@ from __future__ import annotations
 
 import time
 
-__all__ = ["MAX_VALUES", "bridge_status"]
+__all__ = ["MAX_VALUES", "SOFTWARE_BUSES", "bridge_status", "hardware_id", "node_status"]
+
+#: python-can interfaces without hardware: here they carry the simulated rig (rig_sim)
+SOFTWARE_BUSES = ("udp_multicast", "virtual")
+
+
+def hardware_id(params) -> str:
+    """Return the bridge's diagnostics ``hardware_id`` from its parameters.
+
+    ``interface:channel`` (``socketcan:can0``); ``simulated rig (interface:channel)`` on a
+    software bus (:data:`SOFTWARE_BUSES`, where ``rig_sim`` speaks, the same id it reports);
+    ``log:PATH`` when replaying ``input.log_file``.
+    """
+    if params.get("input.log_file"):
+        return f"log:{params['input.log_file']}"
+    bus = f"{params['can.interface']}:{params['can.channel']}"
+    return f"simulated rig ({bus})" if params["can.interface"] in SOFTWARE_BUSES else bus
 
 #: Most key/values one status carries (a guard; the values are bounded by construction).
 MAX_VALUES = 200
@@ -96,3 +112,38 @@ def bridge_status(assembler, bus, gate, rig_keys, extra: dict):
         kept["values_truncated"] = len(values) - len(kept)
         values = kept
     return level, "; ".join(problems) or "bridging", values
+
+
+def node_status(bridge, idle_timeout: float):
+    """Return the /diagnostics ``(level, message, values)`` of a ``CanBridgeNode``.
+
+    Unconfigured: its lifecycle state only. Otherwise :func:`bridge_status` with the node's
+    own values (lifecycle state, rig_state published, stale groups, command publishers or
+    the log replay); the message starts with the state unless active. An idle bus (no new
+    rig frame for ``idle_timeout`` [s]) while active logs one warning, and one line when
+    frames come back.
+    """
+    state = bridge._state
+    if bridge._assembler is None:
+        return "OK", state, {"lifecycle_state": state}
+    if bridge._bus is not None and bridge._active:
+        idle = time.monotonic() - bridge._last_new
+        if idle > idle_timeout and not bridge._idle_warned:
+            bridge._idle_warned = True
+            bridge.get_logger().warning(f"no new rig frames for {idle:.1f} s; rig_state paused")
+        elif idle <= idle_timeout and bridge._idle_warned:
+            bridge._idle_warned = False
+            bridge.get_logger().info("rig frames again; rig_state resumed")
+    extra = {"lifecycle_state": state, "rig_state_published": bridge._published,
+             "stale_samples": bridge._stale_reports,
+             "stale_groups": ", ".join(bridge._stale or []),
+             "foreign_pump_requests": bridge._foreign_requests}
+    source, thread = bridge._source, bridge._log_thread
+    if source is None:
+        extra.update(bridge._sources.diagnose())
+    else:
+        extra.update(log_file=str(source.path), log_frames=source.frames_read,
+                     log_done=thread is not None and not thread.is_alive())
+    level, message, values = bridge_status(bridge._assembler, bridge._bus, bridge._gate,
+                                           bridge._pacer.fallback, extra)
+    return level, (message if bridge._active else f"{state}; {message}"), values

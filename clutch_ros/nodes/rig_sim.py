@@ -34,22 +34,28 @@ from clutch_ros.rig.can_io import RigCanPort
 from clutch_ros.rig.scenario import ScenarioPoint, scenario_from_spec
 
 NAME = "rig_sim"
+_AT_START = "read-only: the bus is opened at start"
 PARAMS = [
-    ParamSpec("can.interface", "udp_multicast", "python-can interface of the simulated rig",
+    ParamSpec("can.interface", "udp_multicast",
+              f"python-can interface of the simulated rig; {_AT_START}", read_only=True),
+    ParamSpec("can.channel", "239.74.163.2",
+              f"interface channel (multicast group ...); {_AT_START}", read_only=True),
+    ParamSpec("can.port", 43113, f"UDP port (udp_multicast only); {_AT_START}", "", 1, 65535,
               read_only=True),
-    ParamSpec("can.channel", "239.74.163.2", "interface channel (multicast group ...)",
-              read_only=True),
-    ParamSpec("can.port", 43113, "UDP port (udp_multicast only)", "", 1, 65535, read_only=True),
-    ParamSpec("rig.params_file", "rig_truth", "truth-plant parameter file or preset name",
+    ParamSpec("rig.params_file", "rig_truth",
+              "truth-plant parameter file or preset name; read-only: the plant is built at start",
               read_only=True),
     ParamSpec("rig.scenario", "", "empty: operator mode (rig.slip_speed, pump from the bus); "
-              "or table3:SEQ:RPM, table4:SEQ, closed_loop[:RPM,...[:SEGMENT_S]]", read_only=True),
-    ParamSpec("rig.repeat", False, "restart a scripted scenario at its end", read_only=True),
+              "or table3:SEQ:RPM, table4:SEQ, closed_loop[:RPM,...[:SEGMENT_S]]; read-only: the "
+              "run is scheduled at start", read_only=True),
+    ParamSpec("rig.repeat", False, "restart a scripted scenario at its end; read-only: part of "
+              "the schedule made at start", read_only=True),
     ParamSpec("rig.slip_speed", 0.0, "operator mode: slip speed held by the rig motor",
               "rad/s", -100.0, 100.0),
-    ParamSpec("rig.dt", 0.001, "simulation step", "s", 1e-4, 0.01, read_only=True),
-    ParamSpec("rig.seed", 0, "seed of the sensor variation and noise", "", 0, 2**31 - 1,
-              read_only=True),
+    ParamSpec("rig.dt", 0.001, "simulation step; read-only: the run's time base is fixed at "
+              "start", "s", 1e-4, 0.01, read_only=True),
+    ParamSpec("rig.seed", 0, "seed of the sensor variation and noise; read-only: drawn at start",
+              "", 0, 2**31 - 1, read_only=True),
 ]
 
 

@@ -36,6 +36,7 @@ from clutch_ros.offline.flexiforce import (
     flexiforce_pressures,
     flexiforce_voltages,
 )
+from clutch_ros.offline.plots import new_figure, save_figure
 from clutch_ros.offline.validation_report import evaluation_from_batch, write_report
 
 __all__ = ["ReplayReport", "plot_replay", "plot_summary"]
@@ -51,13 +52,15 @@ class ReplayReport:
         calibration: FlexiForce calibration method fitted on the bags (``same_force`` or
             ``same_sensor``).
         fixed_calibration: a ``SensorCalibration`` to use instead of fitting one.
+        figures: a dict to keep every saved ``Figure`` in, by path (inspection, tests).
 
     Only what the views need is kept per bag (the evaluation's arrays, the FlexiForce
     voltages), not the whole replay.
     """
 
     def __init__(self, out_dir: Path, params, label: str, *, calibration: str = "same_force",
-                 fixed_calibration=None):
+                 fixed_calibration=None, figures: dict | None = None):
+        self.figures = figures
         self.out_dir = Path(out_dir)
         self.calibration = calibration
         self.fixed_calibration = fixed_calibration
@@ -75,7 +78,7 @@ class ReplayReport:
         v = flexiforce_voltages(volts)
         if self.fixed_calibration is not None and v is not None:  # fail before any plot
             check_sensor_count(self.fixed_calibration, {v.shape[1]}, f"{result.bag}: ")
-        paths = plot_replay(result.bag, rig, batch, self.out_dir)
+        paths = plot_replay(result.bag, rig, batch, self.out_dir, figures=self.figures)
         names = {ev.name for ev, _, _ in self._runs}
         name = Path(result.bag).name or "bag"
         if name in names:  # two bags of the same folder name: keep their files apart
@@ -94,7 +97,7 @@ class ReplayReport:
         """
         written = []
         if len(summaries) > 1:
-            overview = str(plot_summary(summaries, self.out_dir))
+            overview = str(plot_summary(summaries, self.out_dir, figures=self.figures))
             written.append(overview)
             for summary in summaries:
                 summary["plots"].append(overview)
@@ -107,7 +110,8 @@ class ReplayReport:
             if pressures is not None:
                 ev = replace(ev, measured_pdiff=(pressures[0] - pressures[1])[ok])
             evaluations.append(ev)
-        paths, report = write_report({self.label: evaluations}, self.out_dir, area=area)
+        paths, report = write_report({self.label: evaluations}, self.out_dir, area=area,
+                                     figures=self.figures)
         written += [str(p) for p in paths]
         cal = info["calibration"]
         for summary, ev in zip(summaries, evaluations):
@@ -133,29 +137,30 @@ def _pdiff_rmse(ev) -> float | None:
     return None if math.isnan(value) else value
 
 
-def plot_replay(bag: Path, rig, batch, out_dir: Path) -> list[Path]:
-    """Write ``<bag name>_replay.png`` into ``out_dir``; return the paths written."""
-    import matplotlib
+def plot_replay(bag: Path, rig, batch, out_dir: Path, *,
+                figures: dict | None = None) -> list[Path]:
+    """Write ``<bag name>_replay.png`` into ``out_dir``; return the paths written.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-
+    The title names the bag and the spline law; ``figures``: see
+    :func:`~clutch_ros.offline.plots.save_figure`.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     t = rig.time
     ok = batch.accepted
     meas = batch.measured_torque
-    fig, axes = plt.subplots(4, 1, figsize=(11, 10), sharex=False,
-                             gridspec_kw={"height_ratios": [3, 2, 2, 1.6]})
+    law = batch.spline_law
+    fig = new_figure((11, 10.5), dpi=100)
+    axes = fig.subplots(4, 1, gridspec_kw={"height_ratios": [3, 2, 2, 1.6]})
+    for ax in axes[:2]:  # one time axis for the curves, labelled under P_diff
+        ax.sharex(axes[2])
+        ax.tick_params(labelbottom=False)
     ax = axes[0]
     ax.plot(t, meas, color="tab:blue", lw=0.8, label="measured")
-    ax.plot(t, batch.modelled_torque, color="tab:red", lw=0.9,
-            label=f"model ({batch.spline_law})")
+    ax.plot(t, batch.modelled_torque, color="tab:red", lw=0.9, label=f"model ({law})")
     ax.plot(t, batch.reference_torque, color="tab:orange", lw=0.8, ls="--",
             label="reference (Eq. 1)")
     ax.set_ylabel("torque [N m]")
     ax.legend(fontsize=8, loc="upper right")
-    ax.set_title(f"replay of {Path(bag).name}")
     ax = axes[1]
     with np.errstate(divide="ignore", invalid="ignore"):
         big = np.abs(meas) > 0.05 * np.nanmax(np.abs(meas)) if np.isfinite(meas).any() else ok
@@ -165,7 +170,7 @@ def plot_replay(bag: Path, rig, batch, out_dir: Path) -> list[Path]:
     ax.plot(t, acc_ref, color="tab:orange", lw=0.8, label="reference")
     ax.plot(t, acc_model, color="tab:red", lw=0.8, label="model")
     ax.set_ylim(0.6, 1.4)
-    ax.set_ylabel("torque accuracy")
+    ax.set_ylabel("accuracy,\nmeasured / modelled [-]")
     ax.legend(fontsize=8, loc="upper right")
     ax = axes[2]
     ax.plot(t, batch.pressure_difference / 1e5, color="tab:red", lw=0.9,
@@ -175,43 +180,41 @@ def plot_replay(bag: Path, rig, batch, out_dir: Path) -> list[Path]:
     ax.legend(fontsize=8, loc="upper right")
     ax = axes[3]
     values = [rmse(meas[ok], batch.reference_torque[ok]), rmse(meas[ok], batch.modelled_torque[ok])]
-    ax.barh(["reference (Eq. 1)", f"model ({batch.spline_law})"], values,
-            color=["tab:orange", "tab:red"])
-    ax.set_xlabel("RMSE [N m]")
-    fig.tight_layout()
-    path = out_dir / f"{Path(bag).name}_replay.png"
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return [path]
+    ax.barh(["reference (Eq. 1)", f"model ({law})"], values, color=["tab:orange", "tab:red"])
+    ax.set_ylabel("torque from")
+    ax.set_xlabel("RMSE against the measured torque [N m]")
+    fig.suptitle(f"replay of {Path(bag).name}, spline law {law}")
+    return [save_figure(fig, out_dir / f"{Path(bag).name}_replay.png", figures)]
 
 
-def plot_summary(results: list[dict], out_dir: Path) -> Path:
-    """Write ``replay_summary.png``: RMSE and within-±10 % per bag, reference vs model."""
-    import matplotlib
+def plot_summary(results: list[dict], out_dir: Path, *, figures: dict | None = None) -> Path:
+    """Write ``replay_summary.png``: RMSE and within-±10 % per bag, reference vs model.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    ``results``: the bags' replay summaries (``bag``, ``law``, ``rmse_nm``,
+    ``within_10pct`` and their ``reference_`` counterparts); ``figures``: see
+    :func:`~clutch_ros.offline.plots.save_figure`.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     names = [Path(r["bag"]).name for r in results]
+    laws = ", ".join(dict.fromkeys(r["law"] for r in results))
     y = np.arange(len(results))
-    fig, axes = plt.subplots(1, 2, figsize=(12, 1.2 + 0.45 * len(results)), sharey=True)
+    fig = new_figure((12, 1.6 + 0.45 * len(results)), dpi=100)
+    axes = fig.subplots(1, 2, sharey=True)
     for ax, (key, ref_key, label, scale) in zip(axes, (
-            ("rmse_nm", "reference_rmse_nm", "RMSE [N m]", 1.0),
+            ("rmse_nm", "reference_rmse_nm", "torque RMSE [N m]", 1.0),
             ("within_10pct", "reference_within_10pct", "samples within ±10 % [%]", 100.0))):
         ref = [scale * float(r.get(ref_key, float("nan"))) for r in results]
         model = [scale * float(r[key]) for r in results]
         ax.barh(y + 0.2, ref, height=0.4, color="tab:orange", label="reference (Eq. 1)")
-        ax.barh(y - 0.2, model, height=0.4, color="tab:red",
-                label=f"model ({results[0]['law']})")
+        ax.barh(y - 0.2, model, height=0.4, color="tab:red", label=f"model ({laws})")
         ax.set_xlabel(label)
         ax.grid(axis="x", alpha=0.3)
     axes[0].set_yticks(y, names, fontsize=8)
+    axes[0].set_ylabel("run (bag name)")
     axes[0].invert_yaxis()
     axes[1].legend(fontsize=8, loc="lower right")
-    fig.suptitle("replay: reference vs model per sequence")
-    fig.tight_layout()
-    path = out_dir / "replay_summary.png"
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    runs = ", ".join(names)
+    runs = runs if len(runs) <= 60 else f"{len(names)} runs (named left)"
+    fig.suptitle(f"replay, reference vs model per run: {runs}; spline law "
+                 f"{laws}", fontsize=11)
+    return save_figure(fig, out_dir / "replay_summary.png", figures)

@@ -19,6 +19,9 @@ written into ``out_dir`` (``<prefix>_*.png``):
   that matter, hundreds of ms, would need thousands of lags). Bars outside the band mean
   input-dependent dynamics the model misses.
 
+Every title names the run (bag) and the spline law(s), every axis its unit; the run names
+under ``rmse.png`` never overlap (:func:`plot_rmse`).
+
 :func:`write_report` returns the written paths and a summary dict (RMSE table, the fraction of
 lags outside the band per model and run, the files written per run).
 """
@@ -34,8 +37,11 @@ from clutch_ros.errors import ClutchError
 from clutch_ros.model.errors import ModelError
 from clutch_ros.model.identification import RunEvaluation
 from clutch_ros.model.metrics import cross_correlation, rmse
+from clutch_ros.offline.plots import fit_category_labels, new_figure, save_figure
 
-__all__ = ["write_report", "evaluation_from_batch", "rmse_table", "residual_xcorr"]
+__all__ = ["write_report", "plot_rmse", "evaluation_from_batch", "rmse_table", "residual_xcorr"]
+
+DPI = 90  # resolution of the validation PNGs [1/in]
 
 
 def evaluation_from_batch(name: str, t, batch, measured_pdiff=None):
@@ -83,7 +89,8 @@ def residual_xcorr(ev, modelled, rate: float = 50.0, max_lag_s: float = 2.0):
 
 
 def write_report(models: Mapping[str, Sequence], out_dir, prefix: str = "validation",
-                 area: float | None = None) -> tuple[list[Path], dict]:
+                 area: float | None = None, *,
+                 figures: dict | None = None) -> tuple[list[Path], dict]:
     """Write the four views (module docstring); return (paths, summary).
 
     ``summary``: ``rmse`` (:func:`rmse_table`), ``xcorr_outside`` (run -> row title ->
@@ -91,13 +98,11 @@ def write_report(models: Mapping[str, Sequence], out_dir, prefix: str = "validat
     its accuracy, P_diff and cross-correlation PNGs).
 
     ``models``: label -> list of RunEvaluation (same run names for every label); ``area``:
-    piston area [m²] for the spline-force pressure equivalent (default: 3.75e-3, the rig's).
+    piston area [m²] for the spline-force pressure equivalent (default: 3.75e-3, the rig's);
+    ``figures``: a dict to keep the saved ``Figure`` objects in, by path (see
+    :func:`~clutch_ros.offline.plots.save_figure`). Every title names the run(s) and the
+    spline law(s) shown.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     labels = list(models)
@@ -105,12 +110,41 @@ def write_report(models: Mapping[str, Sequence], out_dir, prefix: str = "validat
         raise ClutchError("the validation report needs at least one model with evaluated runs")
     names = [ev.name for ev in models[labels[0]]]
     area = 3.75e-3 if area is None else float(area)
-    paths: list[Path] = []
     summary = {"rmse": rmse_table(models), "xcorr_outside": {}, "files": {}}
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    paths = [plot_rmse(models, out / f"{prefix}_rmse.png", figures=figures)]
+    summary["rmse_file"] = paths[-1]
+    for i, name in enumerate(names):
+        evs = [(label, models[label][i]) for label in labels if i < len(models[label])]
+        laws = _laws_text(evs)
+        safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name) or f"run{i}"
+        paths.append(save_figure(_accuracy_figure(name, laws, evs),
+                                 out / f"{prefix}_accuracy_{safe}.png", figures))
+        paths.append(save_figure(_pdiff_figure(name, laws, evs, area),
+                                 out / f"{prefix}_pdiff_{safe}.png", figures))
+        fig, outside = _xcorr_figure(name, laws, evs)
+        paths.append(save_figure(fig, out / f"{prefix}_xcorr_{safe}.png", figures))
+        summary["xcorr_outside"][name] = outside
+        summary["files"][name] = paths[-3:]
+    return paths, summary
 
-    # Fig. 57: RMSE per sequence
-    fig, ax = plt.subplots(figsize=(max(6, 1.6 * len(names) * len(labels)), 4))
+
+def _laws_text(evs) -> str:
+    """``spline law ff_t`` / ``spline laws none, ff_t`` (the label too where it differs)."""
+    laws = [ev.law if label == ev.law else f"{label} ({ev.law})" for label, ev in evs]
+    return f"spline law{'s' if len(laws) > 1 else ''} {', '.join(laws)}"
+
+
+def plot_rmse(models: Mapping[str, Sequence], path, *, figures: dict | None = None) -> Path:
+    """Write Fig. 57 to ``path``: torque RMSE [N m] per run, reference (hatched) vs each model.
+
+    ``models`` as for :func:`write_report`; the run names on the x axis never overlap
+    (:func:`~clutch_ros.offline.plots.fit_category_labels`).
+    """
+    labels = list(models)
+    names = [ev.name for ev in models[labels[0]]]
+    fig = new_figure((min(16.0, max(6.0, 1.5 + 0.9 * len(names) * len(labels))), 4.5), DPI)
+    ax = fig.subplots()
+    colors = [f"C{j}" for j in range(10)]
     width = 0.8 / (2 * len(labels))
     x = np.arange(len(names))
     for j, label in enumerate(labels):
@@ -122,91 +156,85 @@ def write_report(models: Mapping[str, Sequence], out_dir, prefix: str = "validat
                hatch="//", label=f"reference (Eq. 1, {label} friction)")
         ax.bar(x + (2 * j + 1) * width - 0.4 + width / 2, mod, width, color=c,
                label=f"model {label}")
-    ax.set_xticks(x, names)
     ax.set_ylabel("torque RMSE [N m]")
-    ax.set_title("RMSE per sequence: reference vs fitted model (thesis Fig. 57)")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    paths.append(_save(fig, out / f"{prefix}_rmse.png"))
-    summary["rmse_file"] = paths[-1]
-
-    for i, name in enumerate(names):
-        evs = [(label, models[label][i]) for label in labels if i < len(models[label])]
-        base = evs[0][1]
-        safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name) or f"run{i}"
-        # Figs. 55-56: torque accuracy over time
-        fig, axes = plt.subplots(len(evs) + 1, 1, figsize=(10, 2.0 * (len(evs) + 1)),
-                                 sharex=True)
-        meas = base.measured
-        big = np.abs(meas) > 0.05 * np.nanmax(np.abs(meas)) if np.isfinite(meas).any() \
-            else np.zeros(meas.shape, dtype=bool)
-        rows = [("reference (Eq. 1)", base.t, base.reference)] + [
-            (f"model {label}", ev.t, ev.modelled) for label, ev in evs]
-        for ax, (title, t, mod) in zip(axes, rows):
-            with np.errstate(divide="ignore", invalid="ignore"):
-                acc = np.where(big & (np.abs(mod) > 1.0), meas / mod, np.nan)
-            ax.axhspan(0.9, 1.1, color="tab:green", alpha=0.15, label="±10 % band")
-            ax.plot(t, acc, lw=0.8, label="measured / modelled torque")
-            ax.set_ylim(0.6, 1.4)
-            ax.set_ylabel("accuracy [-]")
-            ax.set_title(title, fontsize=9)
-        axes[0].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0))
-        axes[-1].set_xlabel("time [s]")
-        fig.suptitle(f"{name}: torque accuracy (thesis Figs. 55-56)")
-        fig.tight_layout()
-        paths.append(_save(fig, out / f"{prefix}_accuracy_{safe}.png"))
-
-        # Fig. 54: P_diff vs the spline force
-        fig, axes = plt.subplots(len(evs), 1, figsize=(10, 2.4 * len(evs) + 0.8), sharex=True,
-                                 squeeze=False)
-        for ax, (label, ev) in zip(axes[:, 0], evs):
-            if ev.measured_pdiff is not None:
-                ax.plot(ev.t, ev.measured_pdiff / 1e5, color="tab:gray", lw=0.7,
-                        label="P_diff measured\n(FlexiForce, calibrated\nagainst F_act)")
-            ax.plot(ev.t, ev.pressure_difference / 1e5, color="tab:red", lw=0.9,
-                    label="P_diff model")
-            spline = np.asarray(ev.spline_force)
-            if spline.ndim == 2 and spline.size:
-                ax.plot(ev.t, np.nansum(spline, axis=1) / area / 1e5, color="tab:blue",
-                        lw=0.9, ls="--", label="spline force sum / A")
-            ax.set_ylabel("pressure [bar]")
-            ax.set_title(f"model {label}", fontsize=9)
-            ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0))
-        axes[-1, 0].set_xlabel("time [s]")
-        fig.suptitle(f"{name}: P_diff and the spline force (thesis Fig. 54)")
-        fig.tight_layout()
-        paths.append(_save(fig, out / f"{prefix}_pdiff_{safe}.png"))
-
-        # Eq. 3: residual cross-correlation with its band
-        fig, axes = plt.subplots(len(evs) + 1, 1, figsize=(8, 1.9 * (len(evs) + 1)),
-                                 sharex=True)
-        rows = [("reference (Eq. 1)", base, base.reference)] + [
-            (f"model {label}", ev, ev.modelled) for label, ev in evs]
-        outside = {}
-        for ax, (title, ev, mod) in zip(axes, rows):
-            try:
-                lags, cc = residual_xcorr(ev, mod)
-            except ModelError as err:  # too short a run: say so in the plot
-                ax.set_title(f"{title}: {err}", fontsize=8)
-                continue
-            ax.vlines(lags, 0.0, cc.normalized, lw=1.0)
-            ax.axhspan(-cc.band_normalized, cc.band_normalized, color="tab:green", alpha=0.2)
-            ax.set_ylabel("R / (σε σu)")
-            ax.set_title(f"{title}: {100 * cc.outside:.0f} % of lags outside the "
-                         f"{100 * cc.confidence:.0f} % band", fontsize=9)
-            outside[title] = cc.outside
-        axes[-1].set_xlabel("lag τ [s] (residual lags the pressure for τ > 0)")
-        fig.suptitle(f"{name}: residual-pressure cross-correlation (Eq. 3)")
-        fig.tight_layout()
-        paths.append(_save(fig, out / f"{prefix}_xcorr_{safe}.png"))
-        summary["xcorr_outside"][name] = outside
-        summary["files"][name] = paths[-3:]
-    return paths, summary
+    ax.set_xlabel("run (bag name)")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0))
+    step = fit_category_labels(fig, ax, x, names)
+    laws = _laws_text([(label, models[label][0]) for label in labels])
+    runs = ", ".join(names)
+    if len(runs) > 60 or step > 1:
+        runs = f"{len(names)} runs ({'' if step == 1 else f'one in {step} '}named below)"
+    fig.suptitle(f"Torque RMSE per run, reference vs model: {runs}; {laws} (thesis Fig. 57)",
+                 fontsize=10)
+    return save_figure(fig, path, figures)
 
 
-def _save(fig, path: Path) -> Path:
-    import matplotlib.pyplot as plt
+def _accuracy_figure(name, laws, evs):
+    """Figs. 55-56: torque accuracy (measured / modelled) over time, reference and models."""
+    fig = new_figure((10, 2.0 * (len(evs) + 1) + 0.6), DPI)
+    axes = fig.subplots(len(evs) + 1, 1, sharex=True)
+    base = evs[0][1]
+    meas = base.measured
+    big = np.abs(meas) > 0.05 * np.nanmax(np.abs(meas)) if np.isfinite(meas).any() \
+        else np.zeros(meas.shape, dtype=bool)
+    rows = [("reference (Eq. 1)", base.t, base.reference)] + [
+        (f"model {label}", ev.t, ev.modelled) for label, ev in evs]
+    for ax, (title, t, mod) in zip(axes, rows):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            acc = np.where(big & (np.abs(mod) > 1.0), meas / mod, np.nan)
+        ax.axhspan(0.9, 1.1, color="tab:green", alpha=0.15, label="±10 % band")
+        ax.plot(t, acc, lw=0.8, label="measured / modelled torque")
+        ax.set_ylim(0.6, 1.4)
+        ax.set_ylabel("accuracy [-]")
+        ax.set_title(title, fontsize=9)
+    axes[0].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0))
+    axes[-1].set_xlabel("time [s]")
+    fig.suptitle(f"{name}, {laws}: torque accuracy (thesis Figs. 55-56)", fontsize=11)
+    return fig
 
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+
+def _pdiff_figure(name, laws, evs, area):
+    """Fig. 54: measured and modelled P_diff and the spline force's pressure equivalent."""
+    fig = new_figure((10, 2.4 * len(evs) + 1.0), DPI)
+    axes = fig.subplots(len(evs), 1, sharex=True, squeeze=False)
+    for ax, (label, ev) in zip(axes[:, 0], evs):
+        if ev.measured_pdiff is not None:
+            ax.plot(ev.t, ev.measured_pdiff / 1e5, color="tab:gray", lw=0.7,
+                    label="P_diff measured\n(FlexiForce, calibrated\nagainst F_act)")
+        ax.plot(ev.t, ev.pressure_difference / 1e5, color="tab:red", lw=0.9,
+                label="P_diff model")
+        spline = np.asarray(ev.spline_force)
+        if spline.ndim == 2 and spline.size:
+            ax.plot(ev.t, np.nansum(spline, axis=1) / area / 1e5, color="tab:blue",
+                    lw=0.9, ls="--", label="spline force sum / A")
+        ax.set_ylabel("pressure [bar]")
+        ax.set_title(f"model {label}", fontsize=9)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0))
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.suptitle(f"{name}, {laws}: P_diff and the spline force (thesis Fig. 54)", fontsize=11)
+    return fig
+
+
+def _xcorr_figure(name, laws, evs):
+    """Eq. 3: residual-pressure cross-correlation with its band; also the outside fractions."""
+    fig = new_figure((8, 1.9 * (len(evs) + 1) + 0.6), DPI)
+    axes = fig.subplots(len(evs) + 1, 1, sharex=True)
+    base = evs[0][1]
+    rows = [("reference (Eq. 1)", base, base.reference)] + [
+        (f"model {label}", ev, ev.modelled) for label, ev in evs]
+    outside = {}
+    for ax, (title, ev, mod) in zip(axes, rows):
+        ax.set_ylabel("R / (σε σu) [-]")
+        try:
+            lags, cc = residual_xcorr(ev, mod)
+        except ModelError as err:  # too short a run: say so in the plot
+            ax.set_title(f"{title}: {err}", fontsize=8)
+            continue
+        ax.vlines(lags, 0.0, cc.normalized, lw=1.0)
+        ax.axhspan(-cc.band_normalized, cc.band_normalized, color="tab:green", alpha=0.2)
+        ax.set_title(f"{title}: {100 * cc.outside:.0f} % of lags outside the "
+                     f"{100 * cc.confidence:.0f} % band", fontsize=9)
+        outside[title] = cc.outside
+    axes[-1].set_xlabel("lag τ [s] (residual lags the pressure for τ > 0)")
+    fig.suptitle(f"{name}, {laws}:\nresidual-pressure cross-correlation (Eq. 3)", fontsize=11)
+    return fig, outside

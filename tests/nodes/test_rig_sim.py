@@ -66,8 +66,8 @@ def test_slip_speed_parameter_changes_the_bus(tmp_path):
                 assert after[0] < 1.0 < 2.9 < max(after)
                 refused = _set(h, client, "rig.slip_speed", 500.0)  # beyond +-100 rad/s
                 assert not refused.successful
-                refused = _set(h, client, "rig.dt", 0.002)
-                assert not refused.successful and "run time" in refused.reason
+                refused = _set(h, client, "rig.dt", 0.002)  # read-only: the run's time base
+                assert not refused.successful and "read-only" in refused.reason
                 assert rig.alive()
         finally:
             rig.stop()
