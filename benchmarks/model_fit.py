@@ -49,7 +49,10 @@ RIG_TRUTH = {
     "friction.temperature_ref": 35.0, "friction.temperature_slope": -0.0022,
     "friction.pressure_loss_at_ref": 0.05, "friction.pressure_ref": 4.0e6,
     "friction.static_ratio": 1.25, "friction.stribeck_speed": 0.4,
-    "friction.sign_speed": 0.02, "friction.mu_min": 0.01, "spline.law": "coulomb",
+    "friction.sign_speed": 0.01, "friction.mu_min": 0.01, "friction.film_depth": 0.8,
+    "friction.film_thinning_time": 0.5, "friction.film_recovery_time": 0.15,
+    "thermal.heat_capacity": 1500.0, "thermal.conductance": 60.0,
+    "thermal.oil_temperature": 35.0, "spline.law": "coulomb",
     "spline.gain": 0.0, "spline.time_constant": 1.0, "spline.friction_coefficient": 0.05,
     "spline.radius": 0.05, "slip.filter_time_constant": 0.02,
 }

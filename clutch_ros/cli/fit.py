@@ -19,7 +19,13 @@ leaves it out). A failed calibration is reported and the fit goes on with the to
 
 Data that cannot identify the model (no measured torque, constant pressure, too short, a
 parameter without effect or confounded with another) are refused with a one-line error and
-exit code 2; ``--fix KEY`` keeps a parameter at its base value.
+exit code 2; ``--fix KEY`` keeps a parameter at its base value. When a bag shows a
+pressure-before-delta onset (pressure held at standstill, then slip) the oil-film friction
+(``friction.film_depth``, ``friction.film_recovery_time``) is fitted too.
+
+``--law auto`` fits every passive law and writes the one with the lowest mean RMSE ratio
+model / Eq. 1 on the ``--validate`` bags (on the fit bags without them), printing the ratio
+per law and per validation run; ``--validate`` with one law scores just that law.
 """
 
 from __future__ import annotations
@@ -35,11 +41,18 @@ from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
 from clutch_ros.model.calibration import METHODS
 from clutch_ros.model.identification import SAMPLE_BUDGET, FitOptions, fit
+from clutch_ros.offline.fit_auto import (
+    AutoFitResult,
+    film_start,
+    fit_auto,
+    free_keys,
+    score_law,
+)
 from clutch_ros.offline.flexiforce import load_runs
 
 __all__ = ["add_parser", "run", "main"]
 
-LAWS = ("none", "ff_t", "ff_v", "coulomb")
+LAWS = ("none", "ff_t", "ff_v", "coulomb", "ff_t_printed", "ff_v_printed")
 
 
 def add_parser(sub) -> None:
@@ -47,7 +60,12 @@ def add_parser(sub) -> None:
     p = sub.add_parser("fit", help="fit the model to recorded rig data (grey-box)",
                        description=__doc__.split("\n\n")[0])
     p.add_argument("bags", nargs="+", metavar="BAG", help="bags holding RigState messages")
-    p.add_argument("--law", required=True, choices=LAWS, help="spline-friction law to fit")
+    p.add_argument("--law", required=True, choices=LAWS + ("auto",),
+                   help="spline-friction law to fit; auto: fit every passive law (none, ff_t, "
+                        "ff_v, coulomb), report each one's RMSE ratio against Eq. 1 on the "
+                        "--validate bags (else the fit bags) and write the best")
+    p.add_argument("--validate", nargs="+", default=[], metavar="BAG",
+                   help="bags to score the fitted model(s) on (RMSE ratio model / Eq. 1)")
     p.add_argument("--base", default="flexiforce_8",
                    help="parameter preset or YAML file giving the unfitted parameters and the "
                         "start values (default: flexiforce_8)")
@@ -103,9 +121,24 @@ def run(args) -> int:
     if not args.max_seconds >= 0.0:
         raise ClutchError(f"--max-seconds must be >= 0, got {args.max_seconds}")
     kwargs["max_seconds"] = args.max_seconds or None
-    result = fit(runs, args.law, base, fixed=args.fix, options=FitOptions(**kwargs))
+    options = FitOptions(**kwargs)
+    validation = []
+    if args.validate:
+        validation, _ = load_runs(args.validate, base.pack.piston_area, pdiff=False)
+    auto = None
+    if args.law == "auto":
+        auto = fit_auto(runs, validation, base, fixed=args.fix, options=options)
+        result = auto.best.result
+    else:
+        keys = free_keys(args.law, runs, args.fix)
+        result = fit(runs, args.law, base, fixed=args.fix, free=keys,
+                     start=film_start(base, keys), options=options)
+        if validation:
+            score = score_law(args.law, result, validation)
+            auto = AutoFitResult([score], score, [r.name for r in validation])
+    law = result.params.spline.law
     stamp = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
-    header = (f"clutch fit --law {args.law} --base {args.base} ({stamp})\n"
+    header = (f"clutch fit --law {args.law} ({law}) --base {args.base} ({stamp})\n"
               f"bags: {', '.join(str(b) for b in args.bags)}\n"
               f"fit RMSE {result.rmse:.3f} N m; fitted: "
               + ", ".join(f"{k} = {result.values[k]:.6g} +- {result.stderr[k]:.2g}"
@@ -122,9 +155,14 @@ def run(args) -> int:
                    calibration_comparison=(None if info["comparison"] is None
                                            else _comparison_brief(info["comparison"])),
                    calibration_error=info["calibration_error"])
+        if auto is not None:
+            doc.update(auto=[s.to_dict() for s in auto.scores], best_law=auto.best.law,
+                       validated_on=auto.validated_on)
         emit_json(doc)
     else:
-        lines = [f"fitted law {args.law} on {len(runs)} bag(s) -> {out}"]
+        lines = [f"fitted law {law} on {len(runs)} bag(s) -> {out}"]
+        if auto is not None:
+            lines += auto.lines()
         if cal is not None:
             source = (f"from {args.calibration_file}" if fixed is not None
                       else info["comparison"].summary())

@@ -31,6 +31,7 @@ from clutch_ros.cli.replay_adapt import AdaptiveRun, add_adapt_options, print_ad
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
+from clutch_ros.model.params import SPLINE_LAWS
 from clutch_ros.offline.replay import replay_bag as replay
 from clutch_ros.offline.replay import write_estimates
 from clutch_ros.offline.replay_report import ReplayReport
@@ -44,9 +45,10 @@ def add_parser(sub) -> None:
                        description=__doc__.split("\n\n")[0])
     p.add_argument("bags", nargs="+", metavar="BAG", help="bags holding RigState messages")
     p.add_argument("--params", required=True, help="parameter preset or YAML file")
-    p.add_argument("--law", choices=("none", "ff_t", "ff_v", "coulomb"),
+    p.add_argument("--law", choices=SPLINE_LAWS,
                    help="override spline.law of the parameter file (ff_t and ff_v take "
-                        "Table 7's 10 rpm parameters)")
+                        "Table 7's 10 rpm parameters; *_printed: Eqs. 29-30 as printed, not "
+                        "passive, thesis reproduction only)")
     p.add_argument("-o", "--output", metavar="OUT", help="write ClutchEstimate bag(s) here "
                    "(a directory of bags for several inputs)")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",

@@ -122,7 +122,8 @@ from clutch_ros.model.slip import (
     slip_speed_from_shafts,
     slip_speed_from_wheels,
 )
-from clutch_ros.model.spline import SplineLaw, make_spline_law
+from clutch_ros.model.spline import SplineLaw
+from clutch_ros.model.spline_passive import make_spline_law
 from clutch_ros.model.statespace import build_state_space, static_gain, zoh_discretize
 
 __all__ = [

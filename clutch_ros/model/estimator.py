@@ -6,10 +6,14 @@ temperature [°C], slip speed ω_diff [rad/s], optional measured torque [N m]) i
 
 Per sample:
 
-1. Validation, before any state changes: stamp, pressure, temperature and slip speed must be
-   finite (:class:`NonFiniteSample`); the measured torque may be NaN (= no measurement) but
-   not ±inf; the stamp must be later than the last accepted one (:class:`OutOfOrderSample`,
-   :class:`DuplicateSample`). A rejected sample leaves the estimator exactly as it was.
+1. Validation, before any state changes: stamp, pressure and slip speed must be finite
+   (:class:`NonFiniteSample`); the lamella temperature and the measured torque may be NaN
+   (= not measured) but not ±inf. Without a lamella temperature the pack integrates its
+   thermal state from the modelled slip power (``thermal.*``; it restarts at
+   ``thermal.oil_temperature`` when the estimator initialises), so μ(T) follows heating; a
+   measured temperature always wins. The stamp must be later than the last accepted one
+   (:class:`OutOfOrderSample`, :class:`DuplicateSample`). A rejected sample leaves the
+   estimator exactly as it was.
 2. Time: dt = stamp − last accepted stamp. The first sample, and any sample after a gap
    longer than ``max_gap_s`` (default 1 s; e.g. a paused bag or a dropped link), initialise
    the pack to the static equilibrium at the sample's pressure with no spline force and the
@@ -62,7 +66,8 @@ class Estimate:
         slip_speed_filtered: filtered ω_diff used by the model [rad/s]
         spline_law: law name
         overshoot, undershoot: accuracy > 1.1, < 0.9
-        actuating_pressure: input [Pa]; lamella_temperature: input [°C];
+        actuating_pressure: input [Pa]; lamella_temperature: the temperature used, measured
+        or the thermal state [°C];
         slip_speed: raw input [rad/s]; compression: z_N [m]
         spline_correction: pressure equivalent of the spline loss [Pa]
         reinitialised: the pack was (re)initialised to equilibrium at this sample
@@ -148,7 +153,8 @@ class ClutchEstimator:
                                          slip_speed, measured_torque)]
         except (TypeError, ValueError) as err:
             raise NonFiniteSample(f"sample values must be numbers: {err}") from err
-        if not all(math.isfinite(v) for v in values[:4]) or math.isinf(values[4]):
+        if (not all(math.isfinite(v) for v in (values[0], values[1], values[3]))
+                or math.isinf(values[2]) or math.isinf(values[4])):
             raise NonFiniteSample(
                 f"non-finite sample: stamp={stamp_s!r}, actuating_pressure="
                 f"{actuating_pressure!r}, lamella_temperature={lamella_temperature!r}, "
@@ -185,7 +191,8 @@ class ClutchEstimator:
             stamp, sample.torque, sample.reference_torque, measured, acc, sample.mu,
             sample.normal_force, sample.spline_force, sample.front_pressure,
             sample.rear_pressure, sample.pressure_difference, omega_f, self.params.spline.law,
-            acc > self.overshoot_limit, acc < self.undershoot_limit, p, temp, omega,
+            acc > self.overshoot_limit, acc < self.undershoot_limit, p,
+            sample.lamella_temperature, omega,
             sample.compression, self.pack.spline_correction(), reinit)
 
 
@@ -226,7 +233,7 @@ class EstimateBatch:
 
 
 def _rejections(t, p, temp, omega, measured):
-    finite = (np.isfinite(t) & np.isfinite(p) & np.isfinite(temp) & np.isfinite(omega)
+    finite = (np.isfinite(t) & np.isfinite(p) & ~np.isinf(temp) & np.isfinite(omega)
               & ~np.isinf(measured))
     prev = np.maximum.accumulate(np.where(finite, t, -np.inf))
     prev = np.concatenate([[-np.inf], prev[:-1]])
@@ -270,7 +277,7 @@ def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_spee
     out = {name: nan.copy() for name in (
         "modelled_torque", "reference_torque", "torque_accuracy", "friction_coefficient",
         "front_pressure", "rear_pressure", "pressure_difference", "slip_speed_filtered",
-        "compression")}
+        "compression", "lamella_temperature")}
     normal = np.full((n, n_lam), np.nan)
     spline = np.full((n, n_lam), np.nan)
     reinit = np.zeros(n, dtype=bool)
@@ -292,6 +299,7 @@ def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_spee
             out["pressure_difference"][rows] = sim.pressure_difference
             out["slip_speed_filtered"][rows] = omega_f
             out["compression"][rows] = sim.compression
+            out["lamella_temperature"][rows] = sim.lamella_temperature
             normal[rows] = sim.normal_force
             spline[rows] = sim.spline_force
     mod = out["modelled_torque"]
@@ -308,6 +316,5 @@ def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_spee
         measured_torque=np.where(accepted, meas, np.nan), lamella_normal_force=normal,
         spline_friction_force=spline, overshoot=over, undershoot=under,
         actuating_pressure=np.where(accepted, p, np.nan),
-        lamella_temperature=np.where(accepted, temp, np.nan),
         slip_speed=np.where(accepted, omega, np.nan), spline_law=params.spline.law, **out)
 

@@ -1,27 +1,37 @@
-"""Friction coefficient μ(T, p, ω) and the steady-state reference model (Eq. 1).
+"""Friction coefficient μ(T, p, ω, film) and the steady-state reference model (Eq. 1).
 
-Units: lamella temperature T [°C], actuating pressure p [Pa], slip speed ω = ω_diff [rad/s],
-torque [N m]. Every function takes scalars or arrays (numpy broadcasting) and returns a float
-for all-scalar input, else an array.
+Units: lamella temperature T [°C], pressure p [Pa], slip speed ω = ω_diff [rad/s], torque
+[N m]. Every function takes scalars or arrays (numpy broadcasting) and returns a float for
+all-scalar input, else an array.
 
 Friction coefficient (thesis 2.1.1 and 6.2, Hypothesis 2)::
 
     μ = max(μ_min, μ_ref · f_T · f_p · f_ω)
     f_T = 1 + temperature_slope · (T − temperature_ref)            linear decay with T
     f_p = 1 − pressure_loss_at_ref · max(p, 0) / pressure_ref      0 % at 0 Pa, 5 % at 40 bar
-    f_ω = 1 + (static_ratio − 1) · exp(−(ω / stribeck_speed)²)     Stribeck, static at ω = 0
+    g   = exp(−(ω / stribeck_speed)²)                              1 at standstill, → 0 sliding
+    f_ω = 1 + (static_ratio − 1) · [g + (1 − g) · film_depth · (1 − φ)]
 
-Choices: the Stribeck transition is a Gaussian in ω (the classic exponential Stribeck curve with
-exponent 2) so μ is smooth, even in ω and equals static_ratio·kinetic at zero slip; μ uses the
-*actuating* pressure (the thesis's MISO model input), negative pressures count as 0; the floor
-``mu_min`` keeps μ positive for extreme temperatures (it is the only non-smooth point).
+``φ`` ∈ [0, 1] is the oil-film state of :mod:`clutch_ros.model.film` (1 = intact film, the
+default; it thins while the plates are pressed at low slip, Hypothesis 2). The bracket is a
+convex combination of 1 and (1 − φ)·film_depth ≤ 1, so μ always lies between the kinetic and
+the static value: a thinned film keeps μ near static_ratio·kinetic after the slip starts, until
+the film recovers (the torque spike of PBD runs, thesis Fig. 46). With ``film_depth = 0`` (the
+presets' default until fitted) μ is the classic Stribeck law.
+
+Which pressure: the pack model evaluates μ at the pressure equivalent of its own mean normal
+force, ``p = Σ S_n / (N A)`` (equal to the actuating pressure in steady state without spline
+loss), so a change of the input pressure affects μ only as fast as the plates follow; at the
+instant of a release μ does not jump while the pack is still closed. The steady-state
+reference (Eq. 1) evaluates it at the actuating pressure, as the static MISO model does.
 
 Torque sign: a clutch never produces energy, so the transmitted torque has the sign of
-ω_diff = ω_input − ω_output (it drives the slower shaft and brakes the faster one). The sign is
-regularised as ``tanh(ω / sign_speed)`` with ``sign_speed`` ≤ ``stribeck_speed``/5 (default
-0.02 rad/s ≈ 0.2 rpm), so T·ω ≥ 0 always and the torque is continuous through zero slip, where
-it is 0. :func:`torque_capacity` gives the magnitude (what the pack can transmit at that
-normal force, the value the inverse and the spline loads use).
+ω_diff = ω_input − ω_output. The sign is regularised by :func:`sign_factor`, the C¹ cubic
+``s(x) = x (3 − x²) / 2`` for ``|x| < 1`` and ``sign(x)`` beyond, ``x = ω / sign_speed``
+(default 0.01 rad/s): exactly ±1 for |ω| ≥ sign_speed, so the forward model and the
+steady-state inverse (which works with magnitudes) agree exactly there; T·ω ≥ 0 always and the
+torque is continuous through zero slip, where it is 0. :func:`torque_capacity` gives the
+magnitude.
 """
 
 from __future__ import annotations
@@ -33,9 +43,12 @@ import numpy as np
 __all__ = [
     "friction_coefficient",
     "slip_sign",
+    "sign_factor",
+    "sign_scalar",
     "torque_capacity",
     "reference_torque",
     "mu_scalar",
+    "stribeck_weight",
 ]
 
 
@@ -45,53 +58,78 @@ def _out(value, *inputs):
     return value
 
 
-def friction_coefficient(params, lamella_temperature, actuating_pressure, slip_speed):
-    """Return μ [-] at lamella temperature [°C], actuating pressure [Pa], slip speed [rad/s]."""
+def sign_factor(slip_speed, sign_speed):
+    """Return the regularised sign s(ω / sign_speed) in [−1, 1] (module docstring)."""
+    x = np.clip(np.asarray(slip_speed, dtype=float) / sign_speed, -1.0, 1.0)
+    return _out(0.5 * x * (3.0 - x * x), slip_speed)
+
+
+def sign_scalar(slip_speed: float, sign_speed: float) -> float:
+    """Scalar fast path of :func:`sign_factor`."""
+    x = slip_speed / sign_speed
+    if x >= 1.0:
+        return 1.0
+    if x <= -1.0:
+        return -1.0
+    return 0.5 * x * (3.0 - x * x)
+
+
+def stribeck_weight(fr, slip_speed):
+    """Return g = exp(−(ω / stribeck_speed)²) ∈ (0, 1] (1 at standstill)."""
+    x = np.asarray(slip_speed, dtype=float) / fr.stribeck_speed
+    return _out(np.exp(-(x * x)), slip_speed)
+
+
+def friction_coefficient(params, lamella_temperature, pressure, slip_speed, film=1.0):
+    """Return μ [-] at lamella temperature [°C], pressure [Pa], slip [rad/s], film φ [-]."""
     fr = params.friction
     temp = np.asarray(lamella_temperature, dtype=float)
-    press = np.asarray(actuating_pressure, dtype=float)
+    press = np.asarray(pressure, dtype=float)
     omega = np.asarray(slip_speed, dtype=float)
     f_t = 1.0 + fr.temperature_slope * (temp - fr.temperature_ref)
     f_p = 1.0 - fr.pressure_loss_at_ref * np.maximum(press, 0.0) / fr.pressure_ref
     x = omega / fr.stribeck_speed
-    f_w = 1.0 + (fr.static_ratio - 1.0) * np.exp(-(x * x))
+    g = np.exp(-(x * x))
+    thin = fr.film_depth * (1.0 - np.asarray(film, dtype=float))
+    f_w = 1.0 + (fr.static_ratio - 1.0) * (g + (1.0 - g) * thin)
     mu = np.maximum(fr.mu_ref * f_t * f_p * f_w, fr.mu_min)
-    return _out(mu, lamella_temperature, actuating_pressure, slip_speed)
+    return _out(mu, lamella_temperature, pressure, slip_speed, film)
 
 
-def mu_scalar(fr, lamella_temperature: float, actuating_pressure: float,
-              slip_speed: float) -> float:
+def mu_scalar(fr, lamella_temperature: float, pressure: float, slip_speed: float,
+              film: float = 1.0) -> float:
     """Scalar fast path of :func:`friction_coefficient` taking ``params.friction``."""
     f_t = 1.0 + fr.temperature_slope * (lamella_temperature - fr.temperature_ref)
-    p = actuating_pressure if actuating_pressure > 0.0 else 0.0
+    p = pressure if pressure > 0.0 else 0.0
     f_p = 1.0 - fr.pressure_loss_at_ref * p / fr.pressure_ref
     x = slip_speed / fr.stribeck_speed
-    f_w = 1.0 + (fr.static_ratio - 1.0) * math.exp(-(x * x))
+    g = math.exp(-(x * x))
+    f_w = 1.0 + (fr.static_ratio - 1.0) * (g + (1.0 - g) * fr.film_depth * (1.0 - film))
     mu = fr.mu_ref * f_t * f_p * f_w
     return mu if mu > fr.mu_min else fr.mu_min
 
 
 def slip_sign(params, slip_speed):
-    """Return the smooth torque sign tanh(ω / sign_speed) in [-1, 1] for ω [rad/s]."""
-    return _out(np.tanh(np.asarray(slip_speed, dtype=float) / params.friction.sign_speed),
-                slip_speed)
+    """Return the regularised torque sign in [−1, 1] for ω [rad/s] (module docstring)."""
+    return sign_factor(slip_speed, params.friction.sign_speed)
 
 
-def torque_capacity(params, actuating_pressure, lamella_temperature, slip_speed):
+def torque_capacity(params, actuating_pressure, lamella_temperature, slip_speed, film=1.0):
     """Return |Eq. 1| = 2 R_e μ F_N N with F_N = max(p, 0)·A [N m] (no sign, ≥ 0)."""
     pk = params.pack
     press = np.maximum(np.asarray(actuating_pressure, dtype=float), 0.0)
-    mu = friction_coefficient(params, lamella_temperature, press, slip_speed)
+    mu = friction_coefficient(params, lamella_temperature, press, slip_speed, film)
     cap = 2.0 * pk.effective_radius * pk.lamella_count * pk.piston_area * mu * press
-    return _out(cap, actuating_pressure, lamella_temperature, slip_speed)
+    return _out(cap, actuating_pressure, lamella_temperature, slip_speed, film)
 
 
 def reference_torque(params, actuating_pressure, lamella_temperature, slip_speed):
     """Return the steady-state reference torque of Eq. 1 [N m], signed like ω_diff.
 
-    ``T = 2 · R_e · μ · F_N · N · tanh(ω / sign_speed)`` with ``F_N = max(p, 0) · A`` and μ
-    from :func:`friction_coefficient` (see the module docstring for the sign convention).
+    ``T = 2 · R_e · μ · F_N · N · s(ω)`` with ``F_N = max(p, 0) · A``, μ from
+    :func:`friction_coefficient` at the actuating pressure with an intact film (the static
+    model has no film state) and ``s`` from :func:`sign_factor`.
     """
     cap = torque_capacity(params, actuating_pressure, lamella_temperature, slip_speed)
-    sign = np.tanh(np.asarray(slip_speed, dtype=float) / params.friction.sign_speed)
+    sign = sign_factor(slip_speed, params.friction.sign_speed)
     return _out(cap * sign, actuating_pressure, lamella_temperature, slip_speed)

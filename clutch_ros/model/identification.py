@@ -114,6 +114,8 @@ FREE_PARAMETERS: dict[str, tuple[str, ...]] = {
                 "friction.pressure_loss_at_ref", "spline.friction_coefficient",
                 "clutch.lamella_damping"),
 }
+FREE_PARAMETERS["ff_t_printed"] = FREE_PARAMETERS["ff_t"]
+FREE_PARAMETERS["ff_v_printed"] = FREE_PARAMETERS["ff_v"]
 
 #: key -> (log parameterisation, linear scale)
 _TRANSFORM = {
@@ -124,6 +126,9 @@ _TRANSFORM = {
     "spline.time_constant": (True, 1.0),
     "spline.friction_coefficient": (True, 1.0),
     "clutch.lamella_damping": (True, 1.0),
+    "friction.film_depth": (False, 0.1),
+    "friction.film_recovery_time": (True, 1.0),
+    "friction.film_thinning_time": (True, 1.0),
 }
 _LOG_SPAN = math.log(1e3)  # log parameters may move three decades either way
 
@@ -205,7 +210,7 @@ class FitResult:
 
 def _unit(key: str, law: str) -> str:
     if key == "spline.gain":
-        return "1/m" if law == "ff_t" else "s/m^2"
+        return "1/m" if law.startswith("ff_t") else "s/m^2"
     return PARAMETER_SPECS[key].unit
 
 
@@ -220,9 +225,9 @@ def initial_params(base: ClutchParams, law: str) -> ClutchParams:
     if law not in SPLINE_LAWS:
         raise IdentificationError(f"unknown spline law {law!r} (one of {', '.join(SPLINE_LAWS)})")
     params = base
-    if law in ("ff_t", "ff_v"):
+    if law in ("ff_t", "ff_v", "ff_t_printed", "ff_v_printed"):
         if base.spline.law != law or not base.spline.gain > 0.0:
-            entry = TABLE7[(law, 10)]
+            entry = TABLE7[(law[:4], 10)]
             params = params.replace(**{"spline.law": law, "spline.gain": entry.gain_si,
                                        "spline.time_constant": entry.time_constant})
     else:

@@ -8,6 +8,14 @@ continuous and strictly increasing on that interval (guaranteed by a parameter c
 through μ only (|ω|; the torque request is a magnitude, the direction is the slip's), so a
 request at zero slip commands the static-friction capacity.
 
+Agreement with the forward model: in steady state the pack's mean normal force equals the
+actuating force (no spline loss), so μ at the pack's state equals μ at p, and the forward
+torque is ``C(p) · s(ω)`` with the regularised sign exactly ±1 for ``|ω| ≥ sign_speed``
+(0.01 rad/s by default; :mod:`clutch_ros.model.friction`): forward and inverse agree to
+rounding there. Below it the forward torque fades to 0 at zero slip while the inverse keeps the
+static capacity (a locked clutch transmits what it is asked to, up to that capacity). With the
+oil film on, pass the pack's film state (``film``).
+
 Requests: ``torque`` [N m] must be finite and ≥ 0 (controller requests are magnitudes);
 0 N m commands 0 Pa. Unreachable requests (above C(max_pressure)): clamped to
 ``max_pressure`` by default (``limited`` / ``reason`` say so), or
@@ -56,17 +64,21 @@ class PressureSolution:
 
 
 def capacity_scalar(params, pressure: float, lamella_temperature: float,
-                    slip_speed: float) -> float:
+                    slip_speed: float, film: float = 1.0) -> float:
     """Torque capacity C(p) = 2 R_e N A p μ [N m] for scalars (fast path of the inverse)."""
     pk = params.pack
     p = pressure if pressure > 0.0 else 0.0
-    mu = mu_scalar(params.friction, lamella_temperature, p, slip_speed)
+    mu = mu_scalar(params.friction, lamella_temperature, p, slip_speed, film)
     return 2.0 * pk.effective_radius * pk.lamella_count * pk.piston_area * mu * p
 
 
 def solve_pressure(params, torque: float, lamella_temperature: float, slip_speed: float,
-                   spline_correction: float = 0.0, *, clamp: bool = True) -> PressureSolution:
-    """Solve the inverse (module docstring) and report how the result was obtained."""
+                   spline_correction: float = 0.0, *, clamp: bool = True,
+                   film: float = 1.0) -> PressureSolution:
+    """Solve the inverse (module docstring) and report how the result was obtained.
+
+    ``film``: the pack's oil-film state φ (1 = intact; :attr:`PackSample.film`).
+    """
     try:
         torque, lamella_temperature, slip_speed, spline_correction = (
             float(torque), float(lamella_temperature), float(slip_speed),
@@ -84,7 +96,7 @@ def solve_pressure(params, torque: float, lamella_temperature: float, slip_speed
     if torque == 0.0:
         return PressureSolution(0.0, 0.0, spline_correction, 0.0, False, "")
     reason = ""
-    cap_max = capacity_scalar(params, p_max, lamella_temperature, slip_speed)
+    cap_max = capacity_scalar(params, p_max, lamella_temperature, slip_speed, film)
     if torque > cap_max:
         if not clamp:
             raise UnreachableTorqueError(f"{torque:.1f} N m exceeds the {cap_max:.1f} N m the "
@@ -94,7 +106,7 @@ def solve_pressure(params, torque: float, lamella_temperature: float, slip_speed
         p_ss = p_max
         reason = f"unreachable: {torque:.1f} N m > {cap_max:.1f} N m at max pressure"
     else:
-        p_ss = brentq(lambda p: capacity_scalar(params, p, lamella_temperature, slip_speed)
+        p_ss = brentq(lambda p: capacity_scalar(params, p, lamella_temperature, slip_speed, film)
                       - torque, 0.0, p_max, xtol=1e-9, rtol=4 * np.finfo(float).eps,
                       maxiter=200)
     pressure = p_ss + spline_correction
@@ -104,7 +116,7 @@ def solve_pressure(params, torque: float, lamella_temperature: float, slip_speed
     elif pressure < 0.0:
         pressure = 0.0
         reason = reason or "correction clamped at 0 Pa"
-    predicted = capacity_scalar(params, p_ss, lamella_temperature, slip_speed)
+    predicted = capacity_scalar(params, p_ss, lamella_temperature, slip_speed, film)
     return PressureSolution(float(pressure), float(p_ss), float(spline_correction),
                             float(predicted), bool(reason), reason)
 

@@ -8,13 +8,21 @@ Sampling convention (the whole model core uses it): a sample's inputs are held o
 interval that *ends* at its stamp. ``step(dt, p, ω, T)`` advances the state by ``dt`` with
 F_act = max(p, 0) · A held (exact zero-order hold: matrix exponential of the pack + law
 system, so stable for any dt, however stiff the axial mode) and returns the outputs at the
-new state. The spline forces are held too (ff_v, coulomb) or, for ff_t, integrated with the
-pack. Negative pressures count as 0 (the piston cannot pull).
+new state. The spline forces are held too (every law but ``ff_t_printed``, whose force is
+integrated with the pack). Negative pressures count as 0 (the piston cannot pull).
+
+Friction coefficient: μ comes from the pack's own state, not the input pressure: the pressure
+equivalent of the mean normal force ``Σ S_n / (N A) = k z_N / (N A)``, the oil-film state φ
+(:mod:`clutch_ros.model.film`) and the lamella temperature. A NaN temperature means "not
+measured": the model then integrates its thermal state from the dissipated power
+``|T| · |ω|``; a measured temperature always wins. Film and thermal states advance once per
+step with the step's inputs held, after the pack.
 
 Outputs (:class:`PackSample`): normal force on lamella n ``S_n = k (z_n − z_{n−1})`` (the
 spring behind it, z_0 = 0); torque by Eq. 27, ``2 μ R_e Σ S_n`` = ``2 μ R_e k z_N`` (the sum
-telescopes), floored at 0 (contacts carry no tension) and signed by ``tanh(ω/sign_speed)``
-(see :mod:`clutch_ros.model.friction`); front/rear pressure = S_N / A and S_1 / A, P_diff =
+telescopes), floored at 0 (contacts carry no tension) and signed by the regularised sign
+``s(ω)`` (see :mod:`clutch_ros.model.friction`); the reference (Eq. 1) uses μ at the actuating
+pressure with an intact film; front/rear pressure = S_N / A and S_1 / A, P_diff =
 front − rear (thesis Fig. 20). The torque a spline law sees is the torque magnitude at the
 start of the step (see :mod:`clutch_ros.model.spline`).
 
@@ -37,8 +45,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from clutch_ros.model.errors import InputError, NonFiniteSample
-from clutch_ros.model.friction import mu_scalar
-from clutch_ros.model.spline import make_spline_law
+from clutch_ros.model.film import film_equilibrium, film_step, thermal_step
+from clutch_ros.model.friction import mu_scalar, sign_scalar
+from clutch_ros.model.spline_passive import make_spline_law
 from clutch_ros.model.statespace import (
     build_state_space,
     spring_force_matrix,
@@ -64,6 +73,8 @@ class PackSample:
         rear_pressure: S_1 / A [Pa]
         pressure_difference: P_diff = front − rear [Pa]
         compression: z_N, displacement of the front lamella [m]
+        lamella_temperature: temperature μ used, measured or the thermal state [°C]
+        film: oil-film state φ after the step (1 = intact) [-]
 
     """
 
@@ -76,19 +87,24 @@ class PackSample:
     rear_pressure: float
     pressure_difference: float
     compression: float
+    lamella_temperature: float
+    film: float
 
 
 @dataclass(frozen=True)
 class PackState:
     """Snapshot of a :class:`PackModel` (see :meth:`PackModel.restore`).
 
-    ``work`` holds ``[z_1, ż_1, …, z_N, ż_N, law states, F_act, T, F_f1…F_fN]``.
+    ``work`` holds ``[z_1, ż_1, …, z_N, ż_N, law states, F_act, T, F_f1…F_fN]``; ``film``
+    the oil-film state φ [-], ``temperature`` the thermal state [°C].
     """
 
     lamella_count: int
     law: str
     work: np.ndarray
     warm: object = None
+    film: float = 1.0
+    temperature: float = 35.0
 
     @property
     def positions(self) -> np.ndarray:
@@ -180,8 +196,12 @@ class PackModel:
         self._area = pk.piston_area
         self._c2k = 2.0 * pk.effective_radius * pk.lamella_stiffness
         self._c2n = 2.0 * pk.effective_radius * n
+        self._k_na = pk.lamella_stiffness / (n * pk.piston_area)  # p_eq = k z_N / (N A)
         self._fr = fr
+        self._film_on = fr.film_depth > 0.0
         self._sign_speed = fr.sign_speed
+        self._film = 1.0
+        self._temp = fr.temperature_ref
 
     def discretisation(self, dt: float) -> _Entry:
         """Return the cached discretisation for ``dt`` [s] (``M = [Φ | Γ]``, see statespace)."""
@@ -204,23 +224,29 @@ class PackModel:
         self._last_key, self._last_entry = key, entry
         return entry
 
-    # -- state ------------------------------------------------------------------------
+    # -- state ---------------------------------------------------------------------
     def reset(self, actuating_pressure: float = 0.0, lamella_temperature: float | None = None,
               slip_speed: float = 0.0) -> None:
         """Set the static equilibrium under ``actuating_pressure`` [Pa] (no spline force).
 
-        Temperature [°C] (default ``friction.temperature_ref``) and slip speed [rad/s] only
-        set the law's rest state (ff_t's filter holds κ T of this operating point).
+        Temperature [°C] (default ``friction.temperature_ref``; NaN = not measured: the
+        thermal state starts at ``thermal.oil_temperature``) and slip speed [rad/s] set the
+        law's rest state (ff_t's filter holds κ T of this operating point), the thermal state
+        and the oil film (its equilibrium at this pressure and slip).
         """
         temp = self._fr.temperature_ref if lamella_temperature is None else lamella_temperature
         _check_finite(actuating_pressure, temp, slip_speed)
+        if temp != temp:
+            temp = self.params.thermal.oil_temperature
         lay = self.layout
         w = self._work
         force = actuating_pressure * self._area if actuating_pressure > 0.0 else 0.0
         w[:] = 0.0
         w[:lay.n_pack] = self.static_gain[:lay.n_pack, 0] * force
-        mu = mu_scalar(self._fr, temp, actuating_pressure, slip_speed)
-        load = mu * abs(math.tanh(slip_speed / self._sign_speed))
+        self._temp = float(temp)
+        self._film = film_equilibrium(self._fr, 1.0, actuating_pressure, slip_speed)
+        mu = mu_scalar(self._fr, temp, actuating_pressure, slip_speed, self._film)
+        load = mu * abs(sign_scalar(slip_speed, self._sign_speed))
         zn = w[lay.i_front]
         torque = self._c2k * load * zn if zn > 0.0 else 0.0
         w[lay.law_states] = self.law.equilibrium(torque)
@@ -230,9 +256,9 @@ class PackModel:
 
     @property
     def state(self) -> PackState:
-        """A snapshot of the full state (pack, law, held inputs)."""
+        """A snapshot of the full state (pack, law, held inputs, film, temperature)."""
         return PackState(self.layout.lamella_count, self.law.name, self._work.copy(),
-                         self.law.warm_state())
+                         self.law.warm_state(), self._film, self._temp)
 
     def restore(self, state: PackState) -> None:
         """Return to a snapshot taken from a model with the same N and law."""
@@ -241,6 +267,7 @@ class PackModel:
                              f"N={self.layout.lamella_count}/{self.law.name}")
         np.copyto(self._work, state.work)
         self.law.set_warm_state(state.warm)
+        self._film, self._temp = state.film, state.temperature
 
     def copy(self) -> PackModel:
         """Return an independent model in the same state (shares the dt cache)."""
@@ -254,17 +281,19 @@ class PackModel:
     def set_params(self, params) -> None:
         """Apply new parameters, keeping the state when N (and so its shape) is unchanged.
 
-        Pack positions/velocities are kept; the law's states are kept when the law is the
-        same (ff_t's filter state y = κ·lowpass(T) is rescaled by κ_new/κ_old, as if the new
-        κ had always applied), else the new law starts at rest (no force). A different N
-        resets to equilibrium at the current actuating force.
+        Pack positions/velocities, film and thermal state are kept; the law's states are kept
+        when the law is the same (ff_t's filter state y = κ·lowpass(T) is rescaled by
+        κ_new/κ_old, as if the new κ had always applied), else the new law starts at rest (no
+        force). A different N resets to equilibrium at the current actuating force.
         """
         old_state, old_law = self._work.copy(), self.law
         old_layout = self.layout
+        film, temp = self._film, self._temp
         self._configure(params)
         if params.pack.lamella_count != old_layout.lamella_count:
-            self.reset(old_state[old_layout.i_force] / self._area)
+            self.reset(old_state[old_layout.i_force] / self._area, temp)
             return
+        self._film, self._temp = film, temp
         lay = self.layout
         w = self._work
         w[:lay.n_pack] = old_state[:lay.n_pack]
@@ -274,55 +303,82 @@ class PackModel:
         if self.law.name == old_law.name:
             w[lay.law_states] = old_state[old_layout.law_states]
             w[lay.forces] = old_state[old_layout.forces]
-            if self.law.name == "ff_t" and old_law.gain > 0.0:
+            if self.law.name in ("ff_t", "ff_t_printed") and old_law.gain > 0.0:
                 w[lay.law_states] *= self.law.gain / old_law.gain
             self.law.set_warm_state(old_law.warm_state())
         else:
             w[lay.law_states] = self.law.equilibrium(torque)
             self.law.set_warm_state(None)
 
-    # -- stepping ---------------------------------------------------------------------
+    # -- stepping --------------------------------------------------------------------
     def step(self, dt: float, actuating_pressure: float, slip_speed: float,
              lamella_temperature: float) -> PackSample:
-        """Advance by ``dt`` [s] with the sample's inputs held; return the outputs."""
+        """Advance by ``dt`` [s] with the sample's inputs held; return the outputs.
+
+        ``lamella_temperature`` [°C] NaN means not measured: the thermal state is used.
+        """
         if not (dt > 0.0 and math.isfinite(dt)):
             raise InputError(f"dt must be finite and > 0, got {dt!r}")
         _check_finite(actuating_pressure, lamella_temperature, slip_speed)
         entry = self.discretisation(dt)
-        mu = mu_scalar(self._fr, lamella_temperature, actuating_pressure, slip_speed)
-        sign = math.tanh(slip_speed / self._sign_speed)
-        self._advance(entry, actuating_pressure, mu, sign)
-        return self._sample(self._work.item(self.layout.i_force), mu, sign)
+        sign = sign_scalar(slip_speed, self._sign_speed)
+        self._advance(entry, dt, actuating_pressure, slip_speed, lamella_temperature, sign)
+        return self._sample(self._work.item(self.layout.i_force), actuating_pressure,
+                            slip_speed, sign)
 
-    def _advance(self, entry: _Entry, pressure: float, mu: float, sign: float) -> None:
+    def _advance(self, entry: _Entry, dt: float, pressure: float, omega: float,
+                 temperature: float, sign: float) -> float:
+        """One step (shared by step() and simulate()); returns the law's torque T [N m].
+
+        μ is evaluated at the start of the step from the pack's own state: the pressure
+        equivalent of its mean normal force ``k z_N / (N A)``, the film state and the
+        temperature (measured, else the thermal state). Then the law's forces, the exact ZOH
+        of the pack, and the film and thermal states with the same inputs held.
+        """
         lay = self.layout
         w = self._work
-        load = mu * abs(sign)
+        fr = self._fr
+        temp = temperature if temperature == temperature else self._temp
         zn = w.item(lay.i_front)
+        p_eq = zn * self._k_na if zn > 0.0 else 0.0
+        mu = mu_scalar(fr, temp, p_eq, omega, self._film)
+        load = mu * abs(sign)
         torque = self._c2k * load * zn if zn > 0.0 else 0.0
         w[lay.i_force] = pressure * self._area if pressure > 0.0 else 0.0
         w[lay.i_torque] = torque
         self.law.apply(entry, torque, load)
         np.dot(entry.M, w, out=self._xbuf)
         self._xview[:] = self._xbuf
+        if self._film_on:
+            self._film = film_step(fr, self._film, dt, p_eq, omega)
+        if temperature == temperature:
+            self._temp = temperature
+        else:
+            self._temp = thermal_step(self.params.thermal, temp, dt, torque * abs(omega))
+        return torque
 
     def output(self, actuating_pressure: float, slip_speed: float,
                lamella_temperature: float) -> PackSample:
         """Return the outputs for the current state with these inputs, without advancing."""
         _check_finite(actuating_pressure, lamella_temperature, slip_speed)
-        mu = mu_scalar(self._fr, lamella_temperature, actuating_pressure, slip_speed)
-        sign = math.tanh(slip_speed / self._sign_speed)
+        if lamella_temperature == lamella_temperature:
+            self._temp = float(lamella_temperature)
+        sign = sign_scalar(slip_speed, self._sign_speed)
         force = actuating_pressure * self._area if actuating_pressure > 0.0 else 0.0
-        return self._sample(force, mu, sign)
+        return self._sample(force, actuating_pressure, slip_speed, sign)
 
-    def _sample(self, force: float, mu: float, sign: float) -> PackSample:
+    def _sample(self, force: float, pressure: float, omega: float, sign: float) -> PackSample:
         normal = self._spring.dot(self._zview)
         zn = self._work.item(self.layout.i_front)
+        p_eq = zn * self._k_na if zn > 0.0 else 0.0
+        mu = mu_scalar(self._fr, self._temp, p_eq, omega, self._film)
+        mu_ref = mu_scalar(self._fr, self._temp, pressure, omega)
         torque = self._c2k * mu * zn if zn > 0.0 else 0.0
         front = float(normal[-1]) / self._area
         rear = float(normal[0]) / self._area
-        return PackSample(torque * sign, self._c2n * mu * force * sign, mu, normal,
-                          self.law.current_forces(), front, rear, front - rear, zn)
+        return PackSample(torque * sign, self._c2n * mu_ref * force * sign, mu, normal,
+                          self.law.current_forces(), front, rear, front - rear, zn,
+                          self._temp, self._film)
 
     # -- derived quantities -----------------------------------------------------------
     @property
@@ -356,7 +412,8 @@ class PackModel:
 
 
 def _check_finite(pressure: float, temperature: float, slip_speed: float) -> None:
-    if not (math.isfinite(pressure) and math.isfinite(temperature)
+    """Pressure and slip must be finite; the temperature finite or NaN (not measured)."""
+    if not (math.isfinite(pressure) and not math.isinf(temperature)
             and math.isfinite(slip_speed)):
         raise NonFiniteSample(f"non-finite input: actuating_pressure={pressure!r}, "
                               f"lamella_temperature={temperature!r}, slip_speed={slip_speed!r}")

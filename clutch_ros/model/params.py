@@ -2,16 +2,19 @@
 
 The flat form is a mapping of dotted keys (``clutch.lamella_count``...), exactly as the ROS 2
 parameter files and nodes use them; :class:`ClutchParams` is the nested, frozen form the model
-uses. The key namespace ``clutch.`` maps to the attribute ``pack``; ``friction.``, ``spline.``
-and ``slip.`` map to attributes of the same name.
+uses. The key namespace ``clutch.`` maps to the attribute ``pack``; ``friction.``, ``spline.``,
+``slip.`` and ``thermal.`` map to attributes of the same name.
 
 :data:`PARAMETER_SPECS` is the single table of every key: unit, description, range and default
 (``None`` = required). The ROS nodes build their ParameterDescriptors from it. Keys outside the
-four namespaces are ignored by :meth:`ClutchParams.from_flat` (nodes keep their own keys in the
+namespaces are ignored by :meth:`ClutchParams.from_flat` (nodes keep their own keys in the
 same file); unknown keys inside them (typos), missing required keys, wrong types, non-finite
 and out-of-range values raise :class:`ParameterError` naming the key.
 
 Unit of ``spline.gain`` per law (Table 7 conversion, see :data:`TABLE7`):
+
+The gains below hold for the passive laws and for the printed forms (``ff_t_printed``,
+``ff_v_printed``) alike.
 
 - ``ff_t`` (Eq. 29): κ in N of spline force per lamella per N m of transmitted torque, i.e.
   1/m, taken from Table 7 as printed. With κ = 0.3786 1/m and 1230 N m the peak force is
@@ -59,13 +62,19 @@ __all__ = [
     "FrictionParams",
     "SplineParams",
     "SlipParams",
+    "ThermalParams",
     "ClutchParams",
+    "PASSIVE_LAWS",
 ]
 
 #: Key namespace -> attribute of :class:`ClutchParams`.
-NAMESPACES = {"clutch": "pack", "friction": "friction", "spline": "spline", "slip": "slip"}
-#: Valid values of ``spline.law``.
-SPLINE_LAWS = ("none", "ff_t", "ff_v", "coulomb")
+NAMESPACES = {"clutch": "pack", "friction": "friction", "spline": "spline", "slip": "slip",
+              "thermal": "thermal"}
+#: Valid values of ``spline.law``: the passive laws, then Eqs. 29-30 exactly as printed
+#: (not passive; for reproducing the thesis only, never a default).
+SPLINE_LAWS = ("none", "ff_t", "ff_v", "coulomb", "ff_t_printed", "ff_v_printed")
+#: The laws that never do positive work on a lamella.
+PASSIVE_LAWS = ("none", "ff_t", "ff_v", "coulomb")
 
 
 @dataclass(frozen=True)
@@ -149,11 +158,21 @@ PARAMETER_SPECS: dict[str, ParamSpec] = dict([
           minimum=0.5, maximum=3.0),
     _spec("friction.stribeck_speed", "rad/s", "slip speed of the Stribeck transition "
           "(Gaussian width)", minimum=0.0, maximum=100.0, min_exclusive=True),
-    _spec("friction.sign_speed", "rad/s", "width of the smooth torque sign tanh(w/w_s); "
-          "<= stribeck_speed / 5", minimum=0.0, maximum=20.0, default=0.02, min_exclusive=True),
+    _spec("friction.sign_speed", "rad/s", "slip speed above which the torque sign is exactly "
+          "+-1 (C1 cubic inside); <= stribeck_speed / 5", minimum=0.0, maximum=20.0,
+          default=0.01, min_exclusive=True),
     _spec("friction.mu_min", "", "positive floor of the friction coefficient",
           minimum=0.0, maximum=1.0, default=0.01, min_exclusive=True),
-    _spec("spline.law", "", "spline-friction law", "str", default=None, choices=SPLINE_LAWS),
+    _spec("friction.film_depth", "", "oil-film friction (Hypothesis 2): fraction of the static "
+          "rise (static_ratio - 1) a fully thinned film keeps while sliding; 0 = off",
+          minimum=0.0, maximum=1.0, default=0.0),
+    _spec("friction.film_thinning_time", "s", "time constant of film thinning at standstill "
+          "under pressure_ref", minimum=0.0, maximum=1e4, default=1.0, min_exclusive=True),
+    _spec("friction.film_recovery_time", "s", "time constant of film recovery while sliding",
+          minimum=0.0, maximum=1e4, default=0.2, min_exclusive=True),
+    _spec("spline.law", "", "spline-friction law (ff_t_printed, ff_v_printed: Eqs. 29-30 as "
+          "printed, not passive, thesis reproduction only)", "str", default=None,
+          choices=SPLINE_LAWS),
     _spec("spline.gain", "law-specific", "kappa: ff_t 1/m (N per N m), ff_v s/m^2 "
           "(N per N m per m/s); unused by none and coulomb", minimum=0.0, maximum=1e9),
     _spec("spline.time_constant", "s", "tau of Eq. 29 / Eq. 30", minimum=0.0, maximum=1e4,
@@ -162,6 +181,14 @@ PARAMETER_SPECS: dict[str, ParamSpec] = dict([
           minimum=0.0, maximum=1.0, default=0.05),
     _spec("spline.radius", "m", "coulomb: pitch radius of the lamella spline r_s",
           minimum=0.0, maximum=1.0, default=0.05, min_exclusive=True),
+    _spec("thermal.heat_capacity", "J/K", "estimator thermal state (used when no lamella "
+          "temperature is measured): lamella pack heat capacity C", minimum=0.0, maximum=1e7,
+          default=1500.0, min_exclusive=True),
+    _spec("thermal.conductance", "W/K", "estimator thermal state: lamella-to-oil conductance G",
+          minimum=0.0, maximum=1e6, default=60.0, min_exclusive=True),
+    _spec("thermal.oil_temperature", "degC", "estimator thermal state: oil temperature the "
+          "pack cools to, and its start temperature", minimum=-60.0, maximum=400.0,
+          default=35.0),
     _spec("slip.filter_time_constant", "s", "first-order low pass of the slip speed "
           "('filtered Diff Omega'); 0 = unfiltered", minimum=0.0, maximum=100.0, default=0.02),
 ])
@@ -220,8 +247,11 @@ class FrictionParams:
     pressure_ref: float  # [Pa]
     static_ratio: float
     stribeck_speed: float  # [rad/s]
-    sign_speed: float = 0.02  # [rad/s]
+    sign_speed: float = 0.01  # [rad/s]
     mu_min: float = 0.01
+    film_depth: float = 0.0
+    film_thinning_time: float = 1.0  # [s]
+    film_recovery_time: float = 0.2  # [s]
 
     def __post_init__(self):
         _validated(self, "friction")
@@ -251,8 +281,20 @@ class SlipParams:
         _validated(self, "slip")
 
 
+@dataclass(frozen=True)
+class ThermalParams:
+    """Estimator thermal state (keys ``thermal.*``), see :mod:`clutch_ros.model.film`."""
+
+    heat_capacity: float = 1500.0  # [J/K]
+    conductance: float = 60.0  # [W/K]
+    oil_temperature: float = 35.0  # [°C]
+
+    def __post_init__(self):
+        _validated(self, "thermal")
+
+
 _GROUPS = {"pack": PackParams, "friction": FrictionParams, "spline": SplineParams,
-           "slip": SlipParams}
+           "slip": SlipParams, "thermal": ThermalParams}
 
 
 @dataclass(frozen=True)
@@ -270,6 +312,7 @@ class ClutchParams:
     friction: FrictionParams
     spline: SplineParams
     slip: SlipParams = field(default_factory=SlipParams)
+    thermal: ThermalParams = field(default_factory=ThermalParams)
 
     def __post_init__(self):
         fr = self.friction
@@ -349,13 +392,13 @@ class ClutchParams:
         return ClutchParams.from_flat(flat)
 
     def with_law(self, law: str, slip_rpm: int = 10) -> ClutchParams:
-        """Return a copy using ``law``; ff_t/ff_v take gain and τ from Table 7 at ``slip_rpm``.
+        """Return a copy using ``law`` (ff_t/ff_v and printed forms: κ, τ of Table 7).
 
         ``slip_rpm`` must be 10 or 30 for ff_t/ff_v (the Table 7 columns); it is ignored for
         ``none`` and ``coulomb``, which keep the current gain/τ (unused by them).
         """
-        if law in ("ff_t", "ff_v"):
-            entry = TABLE7.get((law, int(slip_rpm)))
+        if law in ("ff_t", "ff_v", "ff_t_printed", "ff_v_printed"):
+            entry = TABLE7.get((law[:4], int(slip_rpm)))
             if entry is None:
                 raise ParameterError("spline.law", f"Table 7 has no {law} column for "
                                      f"{slip_rpm} rpm (10 or 30)")

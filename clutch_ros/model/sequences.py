@@ -38,6 +38,7 @@ __all__ = [
     "incremented_step_sequence",
     "ramp_sequence",
     "pbd_sequence",
+    "pbd_release_sequence",
     "table3",
     "table4",
     "make_sequence",
@@ -172,6 +173,29 @@ def pbd_sequence(slip_rpm: float = 10.0, temperature: float = 35.0, dt: float = 
                  temperature, slip_rpm, (lead_in, lead_in + 10.0))
 
 
+def pbd_release_sequence(slip_rpm: float = 10.0, temperature: float = 35.0,
+                         dt: float = 1e-3, *, level: float = 30 * BAR, lead_in: float = 1.0,
+                         standstill: float = 1.0, slip_time: float = 2.0, stop: float = 0.5,
+                         reverse_time: float = 2.0, lead_out: float = 3.0) -> Sequence:
+    """PBD run released while slipping: ``level`` [Pa] at standstill, +ω, stop, −ω, release.
+
+    0 bar for ``lead_in``; ``level`` applied at standstill for ``standstill`` [s]; slip +ω for
+    ``slip_time``; 0 for ``stop``; −ω for ``reverse_time``; then the pressure is released to
+    0 bar while the −ω slip continues for ``lead_out`` (the open clutch must not transmit).
+    """
+    w = rpm_to_rad_s(slip_rpm)
+    t_on = lead_in
+    t_slip = t_on + standstill
+    t_stop = t_slip + slip_time
+    t_rev = t_stop + stop
+    t_off = t_rev + reverse_time
+    t = _grid(t_off + lead_out, dt)
+    press = _steps(t, [(t_on, level), (t_off, 0.0)])
+    slip = _steps(t, [(t_slip, w), (t_stop, 0.0), (t_rev, -w)])
+    return _make("pbd_release", "PBD at 30 bar, +/- slip with a stop, released while slipping",
+                 t, press, slip, temperature, slip_rpm, (t_on, t_off))
+
+
 def make_sequence(name: str, slip_rpm: float = 10.0, dt: float = 1e-3,
                   temperature: float = 35.0, **kwargs) -> Sequence:
     """Build a sequence by name: step, inc_step, ramp4, ramp12, ramp24, pbd."""
@@ -183,7 +207,10 @@ def make_sequence(name: str, slip_rpm: float = 10.0, dt: float = 1e-3,
         return ramp_sequence(float(name[4:]), slip_rpm, dt, temperature=temperature, **kwargs)
     if name == "pbd":
         return pbd_sequence(slip_rpm, temperature, dt, **kwargs)
-    raise InputError(f"unknown sequence {name!r} (one of {', '.join(SEQUENCE_NAMES)})")
+    if name == "pbd_release":
+        return pbd_release_sequence(slip_rpm, temperature, dt, **kwargs)
+    raise InputError(f"unknown sequence {name!r} (one of {', '.join(SEQUENCE_NAMES)}, "
+                     "pbd_release)")
 
 
 def table3(slip_rpm: float = 10.0, dt: float = 1e-3) -> list[Sequence]:

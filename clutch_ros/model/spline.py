@@ -1,28 +1,37 @@
-"""Spline-friction laws behind one interface (``none``, ``ff_t``, ``ff_v``, ``coulomb``).
+"""Spline-friction laws behind one interface: ``none``, ``coulomb`` and Eqs. 29-30 as printed.
+
+The passive ``ff_t`` and ``ff_v`` (the presets' laws) are in
+:mod:`clutch_ros.model.spline_passive`;
+this module keeps Eqs. 29-30 exactly as printed as ``ff_t_printed`` and ``ff_v_printed``. They
+are NOT passive: a high-pass of a falling torque (Eq. 29) or a filtered speed that lags a
+reversal (Eq. 30) pushes lamellas along their motion, so friction can do positive work on the
+pack (normal forces above the piston force, torque through an open clutch). They are kept for
+reproducing the thesis only and are never a default.
 
 A law supplies the per-lamella spline friction force ``F_fn`` [N] that Eqs. 11-13 subtract
 (positive = opposing compression). :class:`~clutch_ros.model.pack.PackModel` holds the force
 constant over each step (zero-order hold) and calls the law once per step, before advancing.
 The torque a law sees, ``T``, is the magnitude of the torque the pack transmits at the start of
-the step, ``2 R_e μ |tanh(ω/ω_s)| Σ S_n`` [N m] (spline load grows with transmitted torque).
+the step, ``2 R_e μ |s(ω)| Σ S_n`` [N m] (spline load grows with transmitted torque; s is the
+regularised torque sign of :mod:`clutch_ros.model.friction`, μ the pack-state μ).
 
 Laws with dynamics append states to the pack state, so the whole (pack + law) system is one
 linear ODE between samples and is discretised exactly by the pack's matrix exponential:
 
 - ``none``: F_f = 0 (the Eq. 1 pack).
-- ``ff_t`` (Eq. 29): ``F_f = τs/(τs+1) κ T``, the same force on every lamella. State ``y``
+- ``ff_t_printed`` (Eq. 29): ``F_f = τs/(τs+1) κ T``, the same force on every lamella. State ``y``
   with ``τ ẏ = κ T − y`` and ``F_f = κ T − y``; T is held over the step and the force
   ``κ T − y(t)`` enters the pack's equations inside the step, so pack and filter are
   discretised together exactly: the response to a torque step is ``κ T e^{−t/τ}`` at every
   sample, for any (variable) dt. κ = ``spline.gain`` [1/m] (N per N m), τ [s].
-- ``ff_v`` (Eq. 30): ``F_fn = T κ 1/(τs+1) ż_n``. States ``w_n`` with ``τ ẇ_n = ż_n − w_n``
+- ``ff_v_printed`` (Eq. 30): ``F_fn = T κ 1/(τs+1) ż_n``. States ``w_n`` with ``τ ẇ_n = ż_n − w_n``
   integrated exactly with the pack (the filter sees the true ż inside the step);
   ``F_fn = κ T w_n`` is evaluated at the start of the step and held (the product of T and
   w would make the step matrix depend on T). Exact filter, force held: accurate for
   dt ≪ τ (1 ms against 2 s). κ = ``spline.gain`` [s/m² = N per (N m · m/s)], τ [s].
 - ``coulomb``: physical spline friction with stiction. Lamella n carries μ R_e (S_n + S_{n+1})
   of friction torque (S_{N+1} = F_act), reacted at the spline radius r_s, so the axial friction
-  is bounded by ``|F_fn| ≤ a (S_n + S_{n+1})`` with ``a = μ μ_s R_e / r_s · |tanh(ω/ω_s)|``
+  is bounded by ``|F_fn| ≤ a (S_n + S_{n+1})`` with ``a = μ μ_s R_e / r_s · |s(ω)|``
   (μ_s = ``spline.friction_coefficient``, r_s = ``spline.radius``). While a plate slides in
   compression the quasi-static force ratio is ``S_n / S_{n+1} = (1 − a)/(1 + a)``, reversed
   on rebound: a persistent hysteresis.
@@ -45,8 +54,7 @@ import math
 
 import numpy as np
 
-__all__ = ["SplineLaw", "NoSplineFriction", "TorqueFilterLaw", "ViscousLaw", "CoulombLaw",
-           "make_spline_law"]
+__all__ = ["SplineLaw", "NoSplineFriction", "TorqueFilterLaw", "ViscousLaw", "CoulombLaw"]
 
 
 class SplineLaw:
@@ -93,7 +101,7 @@ class SplineLaw:
     def apply(self, entry, torque: float, mu_load: float) -> None:
         """Write the forces held over the next step into the work vector.
 
-        ``torque`` is T [N m] at the start of the step; ``mu_load`` = μ |tanh(ω/ω_s)|.
+        ``torque`` is T [N m] at the start of the step; ``mu_load`` = μ |s(ω)|.
         """
 
     def current_forces(self) -> np.ndarray:
@@ -121,7 +129,7 @@ NoSplineFriction = SplineLaw
 
 
 class TorqueFilterLaw(SplineLaw):
-    """``ff_t``, Eq. 29: high-passed torque, same force on every lamella (module docstring).
+    """``ff_t_printed``, Eq. 29 as printed: high-passed torque on every lamella (not passive).
 
     The force ``κ T − y(t)`` enters the pack's continuous equations directly (T held over the
     step), so the ZOH of the combined system is exact: F_f decays inside a step just as the
@@ -129,7 +137,7 @@ class TorqueFilterLaw(SplineLaw):
     step.
     """
 
-    name = "ff_t"
+    name = "ff_t_printed"
     n_states = 1
     has_force = True
 
@@ -188,9 +196,9 @@ class TorqueFilterLaw(SplineLaw):
 
 
 class ViscousLaw(SplineLaw):
-    """``ff_v``, Eq. 30: torque times low-passed lamella speed, per lamella (module docstring)."""
+    """``ff_v_printed``, Eq. 30 as printed: torque times low-passed lamella speed (not passive)."""
 
-    name = "ff_v"
+    name = "ff_v_printed"
     has_force = True
     acts_per_step = True
 
@@ -228,7 +236,7 @@ class CoulombLaw(SplineLaw):
     def __init__(self, params):
         super().__init__(params)
         sp, pk = params.spline, params.pack
-        #: a = coef · μ |tanh(ω/ω_s)|
+        #: a = coef · μ |s(ω)|
         self.coef = sp.friction_coefficient * pk.effective_radius / sp.radius
         n = self.lamella_count
         self._stuck = np.ones(n, dtype=bool)
@@ -449,9 +457,6 @@ class CoulombLaw(SplineLaw):
         self._mats_entry = None
 
 
-_LAWS = {"none": SplineLaw, "ff_t": TorqueFilterLaw, "ff_v": ViscousLaw, "coulomb": CoulombLaw}
+_LAWS = {"none": SplineLaw, "ff_t_printed": TorqueFilterLaw, "ff_v_printed": ViscousLaw,
+         "coulomb": CoulombLaw}
 
-
-def make_spline_law(params) -> SplineLaw:
-    """Return a fresh law object for ``params.spline.law`` (one per PackModel)."""
-    return _LAWS[params.spline.law](params)

@@ -13,6 +13,7 @@ from clutch_ros.model import (
     friction_coefficient,
     reference_torque,
     simulate,
+    slip_sign,
 )
 from tests.model.closed_forms import step_response_positions
 
@@ -58,15 +59,18 @@ def test_step_response_against_closed_form(none_params):
     res = simulate(none_params, t, 40e5, W10, 35.0, initial_pressure=0.0)
     z = step_response_positions(pk.lamella_count, pk.lamella_mass, pk.lamella_stiffness,
                                 pk.lamella_damping, 40e5 * pk.piston_area, t[::50])
-    mu = friction_coefficient(none_params, 35.0, 40e5, W10)
-    expected = 2 * mu * pk.effective_radius * pk.lamella_stiffness * z[:, -1] * math.tanh(
-        W10 / none_params.friction.sign_speed)
+    # μ at the pack's own mean normal force k z_N / (N A), not at the input pressure
+    p_eq = pk.lamella_stiffness * z[:, -1] / (pk.lamella_count * pk.piston_area)
+    mu = friction_coefficient(none_params, 35.0, p_eq, W10)
+    expected = 2 * mu * pk.effective_radius * pk.lamella_stiffness * z[:, -1] * slip_sign(
+        none_params, W10)
     # expm accuracy on the stiff matrix: ~5e-8 of the final torque
     assert_allclose(res.torque[::50], expected, rtol=0, atol=2e-7 * expected[-1])
     # the torque time constant is c/k (all modes share the slow root -k/c to ~3e-6)
     tau = pk.lamella_damping / pk.lamella_stiffness
-    final = reference_torque(none_params, 40e5, 35.0, W10)
-    assert_allclose(res.torque[int(round(tau / dt))] / final, 1 - math.exp(-1), rtol=1e-5)
+    # (read on the compression: μ rises a little while the pack is not yet fully loaded)
+    final = pk.lamella_count * 40e5 * pk.piston_area / pk.lamella_stiffness
+    assert_allclose(res.compression[int(round(tau / dt))] / final, 1 - math.exp(-1), rtol=1e-5)
 
 
 def test_eq27_outputs_are_consistent(flexiforce):
@@ -74,15 +78,16 @@ def test_eq27_outputs_are_consistent(flexiforce):
     press = np.where(seq_t > 0.2, 40e5, 0.0)
     res = simulate(flexiforce, seq_t, press, W10, 35.0)
     pk = flexiforce.pack
-    eq27 = 2 * res.mu * pk.effective_radius * res.normal_force.sum(axis=1) * math.tanh(
-        W10 / flexiforce.friction.sign_speed)
+    eq27 = 2 * res.mu * pk.effective_radius * res.normal_force.sum(axis=1) * slip_sign(
+        flexiforce, W10)
     assert_allclose(res.torque, eq27, rtol=1e-12, atol=1e-9)  # telescoped sum = k z_N
     assert_allclose(res.front_pressure, res.normal_force[:, -1] / pk.piston_area, rtol=1e-15)
     assert_allclose(res.rear_pressure, res.normal_force[:, 0] / pk.piston_area, rtol=1e-15)
     assert_allclose(res.pressure_difference, res.front_pressure - res.rear_pressure, rtol=1e-15)
-    # compressing against ff_t spline friction: front carries more than rear (P_diff > 0)
+    # compressing against ff_t spline friction: front carries more than rear (P_diff > 0),
+    # the passive law's force bounded by the spline cone a (S_n + S_n+1), a ~ 0.005
     k = int(0.3 / 1e-3)
-    assert res.pressure_difference[k] > 0.05 * 40e5
+    assert 0.01 * 40e5 < res.pressure_difference[k] < 0.1 * 40e5
 
 
 def test_slip_direction_sets_torque_sign(flexiforce):
@@ -110,7 +115,8 @@ def test_variable_dt_is_exact_for_held_inputs(none_params):
     assert_allclose(runs[0].positions[-1], runs[2].positions[-1], rtol=1e-9)
 
 
-@pytest.mark.parametrize("law", ["none", "ff_t", "ff_v", "coulomb"])
+@pytest.mark.parametrize("law", ["none", "ff_t", "ff_v", "coulomb", "ff_t_printed",
+                                 "ff_v_printed"])
 def test_stable_with_huge_sample_times(flexiforce, law):
     params = flexiforce.with_law(law)
     model = PackModel(params)
@@ -119,7 +125,7 @@ def test_stable_with_huge_sample_times(flexiforce, law):
     for dt in (0.5, 10.0, 1e4, 1e4):
         s = model.step(dt, 40e5, W10, 35.0)
         assert np.all(np.isfinite(s.normal_force)) and 0.0 < s.torque <= 1.2 * ref
-    if law in ("none", "ff_t"):  # exact ZOH of pack + law: the equilibrium after 1e4 s
+    if law in ("none", "ff_t_printed"):  # exact ZOH of pack + law: equilibrium after 1e4 s
         assert_allclose(s.torque, ref, rtol=1e-12)
 
 

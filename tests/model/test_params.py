@@ -13,7 +13,13 @@ from clutch_ros.model import (
     ParameterError,
     friction_coefficient,
 )
-from clutch_ros.model.params import FrictionParams, PackParams, SlipParams, SplineParams
+from clutch_ros.model.params import (
+    FrictionParams,
+    PackParams,
+    SlipParams,
+    SplineParams,
+    ThermalParams,
+)
 
 REQUIRED = {key for key, spec in PARAMETER_SPECS.items() if spec.default is None}
 
@@ -43,7 +49,7 @@ def test_design_keys_are_exactly_the_required_ones():
 
 def test_specs_cover_every_field_and_defaults_are_valid():
     groups = {"clutch": PackParams, "friction": FrictionParams, "spline": SplineParams,
-              "slip": SlipParams}
+              "slip": SlipParams, "thermal": ThermalParams}
     keys = {f"{ns}.{f.name}" for ns, cls in groups.items() for f in dataclasses.fields(cls)}
     assert keys == set(PARAMETER_SPECS)
     for key, spec in PARAMETER_SPECS.items():

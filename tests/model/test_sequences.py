@@ -65,3 +65,19 @@ def test_tables():
         (10.0, 35.0), (10.0, 60.0), (30.0, 35.0), (30.0, 60.0)]
     with pytest.raises(InputError):
         make_sequence("ramp5")
+
+
+def test_pbd_release_applies_at_standstill_and_releases_while_slipping():
+    seq = make_sequence("pbd_release", 10.0, 1e-3)
+    w = rpm_to_rad_s(10.0)
+    start, end = seq.active
+    on = (seq.t > start + 1e-9) & (seq.t <= end + 1e-9)
+    assert np.all(seq.actuating_pressure[on] == 30 * BAR)
+    assert np.all(seq.actuating_pressure[~on] == 0.0)
+    # standstill for the first second under pressure, +w, a 0.5 s stop, -w until the end
+    assert np.all(seq.slip_speed[on & (seq.t <= start + 1.0)] == 0.0)
+    levels = [v for i, v in enumerate(seq.slip_speed) if i == 0 or v != seq.slip_speed[i - 1]]
+    assert levels == [0.0, w, 0.0, -w]
+    stop = seq.t[(seq.slip_speed == 0.0) & on & (seq.t > start + 1.5)]
+    assert_allclose(stop[-1] - stop[0], 0.5 - 1e-3, atol=1e-9)
+    assert seq.slip_speed[-1] == -w  # still slipping after the release
