@@ -38,6 +38,7 @@ from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
 from clutch_ros.model import reference_torque
+from clutch_ros.model.control import ControllerSettings
 from clutch_ros.nodes.demo_driver import DemoDriver
 from clutch_ros.nodes.recorder import RecorderNode
 from clutch_ros.offline.demo_summary import closed_loop_summary
@@ -115,7 +116,7 @@ def run(args) -> int:
                       *ros_param_args({"adapt.enabled": not args.no_adapt})],
         "controller": ["--params-file", str(est_file), *ros_param_args(
             {"controller.use_adapted_model": not args.no_adapt,
-             "controller.trim_rate": 0.0 if args.no_adapt else 5.0})],
+             "controller.trim_rate": 0.0 if args.no_adapt else ControllerSettings.trim_rate})],
     }
     if args.dashboard:
         specs["dashboard"] = ros_param_args({"dashboard.port": args.dashboard_port})

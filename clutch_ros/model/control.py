@@ -153,9 +153,9 @@ class ControllerSettings:
     slope_window: float = 0.1
     overshoot_margin: float = 0.05
     correction_gain: float = 1.0
-    trim_rate: float = 5.0
+    trim_rate: float = 8.0
     trim_limit: float = 0.15
-    trim_delay: float = 0.3
+    trim_delay: float = 0.5
     trim_hold: float = 0.25
     step_threshold: float = 0.02
     scale_tolerance: float = 1e-3

@@ -58,6 +58,7 @@ from clutch_ros.nodes.model_params import apply_model_changes, declare_model_par
 from clutch_ros.nodes.peers import Input, PeerWatch
 
 NAME = "controller"
+_C = ControllerSettings()  # the defaults of the trim parameters
 PARAMS = [
     ParamSpec("controller.rate", 100.0, "command publishing rate", "Hz", 1.0, 2000.0),
     ParamSpec("controller.min_pressure", 0.0, "lowest commanded pressure", "Pa", 0.0, 1e8),
@@ -79,15 +80,15 @@ PARAMS = [
               "correction (0 = steady-state inverse only)", "1", 0.0, 2.0),
     ParamSpec("controller.use_adapted_model", True, "invert the model with the estimate's "
               "adapted friction_scale (and spline_gain_scale)"),
-    ParamSpec("controller.trim_rate", 5.0, "integral gain of the torque trim on the measured "
-              "torque, 1/its time constant; 0 = off (it is off anyway without a measurement)",
-              "1/s", 0.0, 100.0),
-    ParamSpec("controller.trim_limit", 0.15, "bound of the trim, a fraction of the request",
-              "1", 0.0, 1.0),
-    ParamSpec("controller.trim_delay", 0.3, "the trim holds this long after a step of the "
-              "request (the pack's step transient)", "s", 0.0, 10.0),
-    ParamSpec("controller.trim_hold", 0.25, "a torque measurement missing for up to this long "
-              "holds the trim (a late frame); longer releases it", "s", 0.0, 10.0),
+    ParamSpec("controller.trim_rate", _C.trim_rate, "integral gain of the torque trim on the "
+              "measured torque, 1/its time constant; 0 = off (off anyway without a "
+              "measurement)", "1/s", 0.0, 100.0),
+    ParamSpec("controller.trim_limit", _C.trim_limit, "bound of the trim, a fraction of the "
+              "request", "1", 0.0, 1.0),
+    ParamSpec("controller.trim_delay", _C.trim_delay, "the trim holds this long after a step "
+              "of the request (the pack's step transient)", "s", 0.0, 10.0),
+    ParamSpec("controller.trim_hold", _C.trim_hold, "a torque measurement missing for up to "
+              "this long holds the trim (a late frame); longer releases it", "s", 0.0, 10.0),
     ParamSpec("controller.request_timeout", 0.5, "a torque request older than this is stale "
               "-> 0 Pa", "s", 0.001, 3600.0),
     ParamSpec("controller.rig_timeout", 0.25, "rig_state older than this is stale -> 0 Pa", "s",

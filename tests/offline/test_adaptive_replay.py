@@ -1,8 +1,11 @@
 """Adaptive replay on the golden bags: out-of-sample gain, and a torque sensor dropping out.
 
-Out of sample: the friction scale adapted on one golden run (35 °C), frozen and saved as a
-parameter file, must lower the RMSE of another run at another temperature (60 °C) replayed
-with the plain (non-adaptive) estimator. Dropout: a golden bag is rewritten with
+Out of sample: the friction scale adapted on one golden run (10 rpm, loaded at ~40 °C), frozen
+and saved as a parameter file, must lower the RMSE of another run at another temperature (30
+rpm, heating to 57-62 °C, loaded at ~47-50 °C) replayed with the plain (non-adaptive)
+estimator. (The Table 4 runs are not used: since the truth plant has the oil film and the
+preset has none, their error, ~200 N m RMSE, is the film's torque spikes at the slip steps,
+which a friction scale cannot explain; adapted on one, a scale moves the other by +2 %.) Dropout: a golden bag is rewritten with
 ``has_measured_torque`` false from half way on (a real bag, written and read back); the
 adaptation must freeze there with a diagnostic saying why, and the estimate must go on.
 """
@@ -32,12 +35,19 @@ def preset():
     return load_params(preset_path("flexiforce_8"))
 
 
-@pytest.mark.parametrize("train,test", [("table4_seq1", "table4_seq2"),
-                                        ("table3_seq2_10rpm", "table4_seq4")])
+def _loaded_temperature(rig):
+    """Mean lamella temperature [°C] where the torque is above 5 % of its maximum."""
+    torque = np.abs(rig.measured_torque)
+    return float(rig.lamella_temperature[torque > 0.05 * torque.max()].mean())
+
+
+@pytest.mark.parametrize("train,test", [("table3_seq2_10rpm", "table3_seq1_30rpm"),
+                                        ("table3_seq1_10rpm", "table3_seq2_30rpm")])
 def test_adapted_frozen_saved_parameters_improve_another_run(preset, tmp_path, train, test):
     """Adapt on ``train``, save, replay ``test`` (other temperature) frozen: lower RMSE."""
     rig_train, rig_test = read_rig_states(GOLDEN / train), read_rig_states(GOLDEN / test)
-    assert rig_test.lamella_temperature.min() > rig_train.lamella_temperature.max() + 10.0
+    assert _loaded_temperature(rig_test) > _loaded_temperature(rig_train) + 6.0
+    assert rig_test.lamella_temperature.max() > rig_train.lamella_temperature.max() + 10.0
     ae = AdaptiveEstimator(preset)
     adaptive_replay([GOLDEN / train], preset, estimator=ae)
     assert ae.status.friction_scale_std < 0.01
@@ -49,7 +59,7 @@ def test_adapted_frozen_saved_parameters_improve_another_run(preset, tmp_path, t
     after = replay_bag(GOLDEN / test, adapted).summary["rmse_nm"]
     print(f"{train} -> {test}: RMSE {before:.2f} -> {after:.2f} N m "
           f"(scale {ae.friction_scale:.4f} +- {ae.status.friction_scale_std:.4f})")
-    assert after < 0.95 * before
+    assert after < 0.8 * before
 
 
 @pytest.fixture(scope="module")
