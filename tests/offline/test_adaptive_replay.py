@@ -5,9 +5,11 @@ and saved as a parameter file, must lower the RMSE of another run at another tem
 rpm, heating to 57-62 °C, loaded at ~47-50 °C) replayed with the plain (non-adaptive)
 estimator. (The Table 4 runs are not used: since the truth plant has the oil film and the
 preset has none, their error, ~200 N m RMSE, is the film's torque spikes at the slip steps,
-which a friction scale cannot explain; adapted on one, a scale moves the other by +2 %.) Dropout: a golden bag is rewritten with
-``has_measured_torque`` false from half way on (a real bag, written and read back); the
-adaptation must freeze there with a diagnostic saying why, and the estimate must go on.
+which a friction scale cannot explain; adapted on one, a scale moves the other by +2 %.)
+
+Dropout: a golden bag is rewritten with ``has_measured_torque`` false from half way on (a
+real bag, written and read back); the adaptation must freeze there with a diagnostic saying
+why, and the estimate must go on.
 """
 
 import json
