@@ -10,6 +10,13 @@ against the rig's measured torque. PNG plots are written next to the bag.
 
 The rig's truth plant (``rig_truth`` preset, ``coulomb`` spline law) differs on purpose from
 the estimator's preset, so the demo never compares a model with itself.
+
+By default the estimator adapts its friction scale online from the rig's measured torque and
+the controller inverts the adapted model with an integral trim on the measured torque
+(README "Adaptive estimation"); ``--no-adapt`` runs the feed-forward path (fixed model, no
+trim). The summary adds ``steady_state_error``: over every request plateau at least 1 s long
+and at least 10 % of the rated torque, |mean measured torque over its last 0.5 s ÷ request −
+1|, the largest (:mod:`clutch_ros.offline.steady_state`).
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
 from clutch_ros.model import reference_torque
+from clutch_ros.model.control import ControllerSettings
 from clutch_ros.nodes.demo_driver import DemoDriver
 from clutch_ros.nodes.recorder import RecorderNode
 from clutch_ros.offline.demo_summary import closed_loop_summary
@@ -52,6 +60,9 @@ def add_parser(sub) -> None:
     p.add_argument("--rig-params", default="rig_truth",
                    help="truth-plant parameter preset or YAML file (default: rig_truth)")
     p.add_argument("--quick", action="store_true", help="shorter profile (about 25 s)")
+    p.add_argument("--no-adapt", action="store_true",
+                   help="feed-forward path: no online adaptation in the estimator, no torque "
+                        "trim in the controller")
     p.add_argument("--rate", type=float, default=100.0,
                    help="RigState publishing rate of the bridge [Hz] (default 100)")
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap",
@@ -101,8 +112,11 @@ def run(args) -> int:
         # faster rises trigger the pump's pressure kick (thesis 5.1.1).
         "can_bridge": ros_param_args({**can, "bridge.rate": args.rate,
                                       "pump.rate_limit": 90e5}),
-        "estimator": ["--params-file", str(est_file)],
-        "controller": ["--params-file", str(est_file)],
+        "estimator": ["--params-file", str(est_file),
+                      *ros_param_args({"adapt.enabled": not args.no_adapt})],
+        "controller": ["--params-file", str(est_file), *ros_param_args(
+            {"controller.use_adapted_model": not args.no_adapt,
+             "controller.trim_rate": 0.0 if args.no_adapt else ControllerSettings.trim_rate})],
     }
     if args.dashboard:
         specs["dashboard"] = ros_param_args({"dashboard.port": args.dashboard_port})
@@ -185,8 +199,9 @@ def _check_alive(procs) -> None:
 
 def _summarise(out: Path, profile, driver, written, rated, args) -> dict:
 
-    summary = closed_loop_summary(out / "bag", profile, driver.started_at)
-    summary.update({"bag": str(out / "bag"), "rated_torque_nm": rated, "messages": written})
+    summary = closed_loop_summary(out / "bag", profile, driver.started_at, rated)
+    summary.update({"bag": str(out / "bag"), "rated_torque_nm": rated, "messages": written,
+                    "adaptive": not args.no_adapt})
     if not args.no_plots:
         summary["plots"] = [str(p) for p in plot_demo(out / "bag", profile, driver.started_at,
                                                       out)]
@@ -202,6 +217,12 @@ def _print_summary(s: dict) -> None:
         f"  estimator RMSE vs measured torque:  {s['estimator_rmse_nm']:.1f} N m"
         f" ({100 * s['estimate_coverage']:.1f} % of rig samples estimated)",
         f"  reference (Eq. 1) RMSE:             {s['reference_rmse_nm']:.1f} N m",
+        f"  steady-state error (plateaus):      {100 * s['steady_state_error']:.2f} %"
+        f" (worst of {s['plateaus']} plateaus, last 0.5 s mean vs request)",
+        "  adaptation:                         " + (
+            f"friction scale {s['friction_scale']:.4f} +- {s['friction_scale_std']:.4f}, "
+            f"largest trim {s['max_trim_pa'] / 1e5:.2f} bar" if s["adaptive"]
+            else "off (--no-adapt: feed-forward path)"),
         f"  bag: {s['bag']}",
     ]
     lines += [f"  plot: {p}" for p in s.get("plots", [])]

@@ -27,6 +27,7 @@ from pathlib import Path
 from clutch_ros.bag.recover import recover_bag
 from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
 from clutch_ros.cli.dispatch import add_batch_options, check_batch_options, emit_json
+from clutch_ros.cli.replay_adapt import AdaptiveRun, add_adapt_options, print_adaptation
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
@@ -59,6 +60,7 @@ def add_parser(sub) -> None:
                         "RMSE per sequence")
     add_calibration_options(p, "the report's measured P_diff (with --report)")
     add_batch_options(p, "bags")
+    add_adapt_options(p)
     p.add_argument("--topic", help="RigState topic to replay (default: the bag's only "
                    "RigState topic)")
     p.add_argument("--recover", action="store_true",
@@ -93,8 +95,10 @@ def run(args) -> int:
                               calibration=args.calibration,
                               fixed_calibration=calibration_from_args(args))
     check_batch_options(args)
-    job = ReplayJob(params, storage=args.storage, keep_result=report is not None)
-    results = []
+    adaptive = AdaptiveRun(args, params)
+    if adaptive.enabled and (args.jobs != 1 or args.cluster):
+        raise ClutchError("--adapt learns across the bags in order; it runs serially (drop "
+                          "--jobs/--cluster)")
     if args.recover and args.cluster:
         raise ClutchError("--recover writes the recovered bags to a local scratch directory; "
                           "it cannot be combined with --cluster")
@@ -114,7 +118,9 @@ def run(args) -> int:
         recoveries.append((bag, recovery, spent))
     # serially, each bag's result is dropped before the next bag is read (bags may be
     # large); in parallel, the workers return summaries only (whole results with --report)
-    if args.jobs == 1 and not args.cluster:
+    if adaptive.enabled:
+        done = (_adaptive_job(adaptive, item, args) for item in items)
+    elif args.jobs == 1 and not args.cluster:
         done = (job(item) for item in items)
     else:
         done = iter(run_jobs(job, items, jobs=args.jobs, cluster=args.cluster))
@@ -131,6 +137,10 @@ def run(args) -> int:
         scratch.cleanup()
     if report is not None:
         report.finish(results)
+    saved = adaptive.finish()
+    if saved:
+        for r in results:
+            r["saved_params"] = saved
     if args.json:
         emit_json(results)
     else:
@@ -140,10 +150,28 @@ def run(args) -> int:
                 f"RMSE {r['rmse_nm']:.2f} N m (reference {r['reference_rmse_nm']:.2f} N m), "
                 f"within ±10 % {100 * r['within_10pct']:.1f} %, accuracy "
                 f"{r['min_accuracy']:.3f}..{r['max_accuracy']:.3f}\n")
+            if adaptive.enabled:
+                print_adaptation(r)
+        if saved:
+            sys.stdout.write(f"adapted parameters written to {saved}\n")
         if report is not None:
             plots = {p for r in results for p in r["plots"]}
             sys.stdout.write(f"report: {len(plots)} PNG files in {args.report}\n")
     return 0
+
+
+def _adaptive_job(adaptive, item, args):
+    """Replay one bag with the adaptive estimator (serial: it learns across the bags)."""
+    source, out = item
+    start = time.perf_counter()
+    result, write = adaptive.replay(source, topic=args.topic)
+    summary = result.summary
+    seconds = time.perf_counter() - start
+    summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
+    if out is not None:
+        summary["estimates_written"] = write(out, args.storage)
+        summary["output"] = str(out)
+    return summary, result
 
 
 def _say_recovery(rep: dict) -> None:

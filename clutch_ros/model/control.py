@@ -19,6 +19,33 @@ The law, for a torque target ``T*``:
 3. a request of 0 N m (or below, or non-finite) commands 0 Pa.
 
 Limits and rate limits on the pressure are the caller's (node parameters).
+
+:class:`TorqueController` adds two things on top of the law:
+
+- the adapted model: :meth:`TorqueController.set_model_scale` inverts the model with μ (and
+  the spline gain) scaled by the estimator's adapted values
+  (:func:`clutch_ros.model.adaptation.scaled_params`), so the feed-forward is the adapted
+  model's inverse. A new scale is taken when the request changes (steps, ramps) or is 0,
+  not in the middle of a hold (``scale_hold``): there the trim integrates, and two
+  integrators on one error would fight;
+- an optional integral trim on the measured torque, in internal-model form: the trim ``u``
+  (a fraction of the request) integrates the model's relative error at the current
+  operating point, ``du/dt = trim_rate · ((|T_model| − |T_meas|) / T* − u)``, and the law
+  inverts the target plus ``u · T*`` (the overshoot guard moves with it). ``T_model`` and
+  ``T_meas`` are the estimate's modelled and measured torque *at the same sample*, both
+  answers to the same actuating pressure, so the error the trim integrates carries no pump
+  or transport lag; at steady state ``T_model(p) = T* + u T*`` and ``u T* = T_model − T_meas``
+  give ``T_meas = T*``: no steady-state error for any constant model error (the integral
+  property), while the loop sees no extra lag (a plain integral of ``T* − T_meas`` winds up
+  against the pump and pack lag and the coulomb spline friction's stick: tried, it overshot).
+  Anti-windup: ``|u| <= trim_limit``; ``u`` holds (does not integrate) while the command is
+  clamped (pressure or rate limits) in the direction the error pushes and for ``trim_delay``
+  after a step of the request (the pack's step transient is the model dynamics' error);
+  it is released to 0 at a step when ``trim_reset_on_change``, without a torque measurement
+  for longer than ``trim_hold`` (off: the adapted model alone; a shorter gap, a late CAN
+  frame, only holds it), with ``trim_rate`` 0 and at a 0 N m request. The trimmed
+  pressure still goes through the pressure limits, so it never leaves them;
+  :attr:`ControllerOutput.trim_pressure` is the trim's share of the published pressure.
 """
 
 from __future__ import annotations
@@ -26,6 +53,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from clutch_ros.model.adaptation import scaled_params
 from clutch_ros.model.errors import ModelError
 from clutch_ros.model.inverse import capacity_scalar, solve_pressure
 
@@ -97,6 +125,20 @@ class ControllerSettings:
         slope_window: window of the request slope [s]
         overshoot_margin: guard, never above inverse((1 + margin) x request) [1]
         correction_gain: weight of the spline-friction correction [1]
+        trim_rate: integral gain of the torque trim, 1/its time constant [1/s]; 0 = off
+        trim_limit: bound of the trim, a fraction of the request [1]
+        trim_delay: the trim holds this long after a step of the request [s]
+        trim_hold: a torque measurement missing for up to this long holds the trim (a late
+            CAN frame); longer, the trim is released (off without a measurement) [s]
+        step_threshold: a request change above this fraction of the request is a step
+            (ramps move by less per tick) [1]
+        scale_tolerance: re-invert with a new friction scale when it moved by this [1]
+        trim_reset_on_change: release the trim at every step of the request (the model's
+            residual error depends on the operating point and on the direction the pack
+            last moved, so a trim learned on one plateau is wrong after a step)
+        scale_hold: take a new adapted friction scale only when the request changes (or is
+            0), never during a hold, where the trim holds the torque: the adaptation and the
+            trim then never act on the same error at once
 
     """
 
@@ -111,6 +153,14 @@ class ControllerSettings:
     slope_window: float = 0.1
     overshoot_margin: float = 0.05
     correction_gain: float = 1.0
+    trim_rate: float = 8.0
+    trim_limit: float = 0.15
+    trim_delay: float = 0.5
+    trim_hold: float = 0.25
+    step_threshold: float = 0.02
+    scale_tolerance: float = 1e-3
+    trim_reset_on_change: bool = True
+    scale_hold: bool = True
 
     def __post_init__(self) -> None:
         checks = {"period": self.period > 0.0, "rise_rate_limit": self.rise_rate_limit > 0.0,
@@ -120,6 +170,12 @@ class ControllerSettings:
                   "slope_window": self.slope_window > 0.0,
                   "overshoot_margin": self.overshoot_margin >= 0.0,
                   "correction_gain": self.correction_gain >= 0.0,
+                  "trim_rate": self.trim_rate >= 0.0,
+                  "trim_limit": 0.0 <= self.trim_limit <= 1.0,
+                  "trim_delay": self.trim_delay >= 0.0,
+                  "trim_hold": self.trim_hold >= 0.0,
+                  "step_threshold": self.step_threshold >= 0.0,
+                  "scale_tolerance": self.scale_tolerance >= 0.0,
                   "min_pressure": 0.0 <= self.min_pressure <= self.max_pressure}
         for name, ok in checks.items():
             if not ok or not math.isfinite(getattr(self, name)):
@@ -129,32 +185,78 @@ class ControllerSettings:
 
 @dataclass(frozen=True)
 class ControllerOutput:
-    """One controller tick: the command and why it is what it is (SI units)."""
+    """One controller tick: the command and why it is what it is (SI units).
+
+    ``trim_pressure`` [Pa] is the integral trim's share of ``pressure`` (0 when off).
+    """
 
     pressure: float
     requested_torque: float
     predicted_torque: float
     limited: bool
     reason: str
+    trim_pressure: float = 0.0
 
 
 class TorqueController:
-    """Stateful torque-to-pressure controller: ramp, lead, control law, limits.
+    """Stateful torque-to-pressure controller: ramp, lead, control law, trim, limits.
 
     The controller node and the offline closed loop (:mod:`clutch_ros.offline.closed_loop`) both
     run this class, so what is tested offline is what runs on the rig. Per tick
     (:meth:`update`): the target ramps towards the request at ``torque_ramp_rate``, is advanced
-    by ``lead_time`` x the request slope, goes through :func:`command_pressure`, then the
-    pressure limits and the rise/fall rate limits. :meth:`fail_safe` commands 0 Pa at once.
+    by ``lead_time`` x the request slope, goes through :func:`command_pressure` on the
+    (adapted) model, gets the integral trim (module docstring), then the pressure limits and
+    the rise/fall rate limits. :meth:`fail_safe` commands 0 Pa at once.
     """
 
     def __init__(self, params, settings: ControllerSettings | None = None):
+        self.base_params = params
         self.params = params
         self.settings = settings or ControllerSettings()
+        self.friction_scale = 1.0  # [1] applied to self.params
+        self.spline_gain_scale = 1.0  # [1]
         self.target = 0.0  # [N m]
         self.pressure = 0.0  # [Pa], last command
         self.request = 0.0  # [N m]
+        self.trim = 0.0  # [1] relative trim u
+        self._changed_at = -math.inf  # [s] last change of the request
+        self._now = -math.inf  # [s] time of the last request
         self._history: list[tuple[float, float]] = []
+        self._pending: tuple[float, float] | None = None
+        self._moved = True  # the request changed since the last tick
+        self._missing_for = 0.0  # [s] the torque measurement has been missing this long
+
+    def set_base_params(self, params) -> None:
+        """Replace the model parameters (scale 1); the adapted scales are re-applied."""
+        self.base_params = params
+        self._rescale(self.friction_scale, self.spline_gain_scale)
+
+    def set_model_scale(self, friction_scale: float, spline_gain_scale: float = 1.0) -> None:
+        """Invert the model with μ x ``friction_scale`` and gain x ``spline_gain_scale``.
+
+        Ignored for non-finite or non-positive values. With ``scale_hold`` the new scales
+        wait for the next change of the request (module docstring); re-inverts only when a
+        scale moved by more than ``scale_tolerance`` (scaled parameters cost ~0.5 ms).
+        """
+        values = (friction_scale, spline_gain_scale)
+        if all(math.isfinite(v) and v > 0.0 for v in values):
+            self._pending = (friction_scale, spline_gain_scale)
+
+    def _apply_pending(self) -> None:
+        if self._pending is None:
+            return
+        friction_scale, spline_gain_scale = self._pending
+        tol = self.settings.scale_tolerance
+        if (abs(friction_scale - self.friction_scale) > tol * self.friction_scale
+                or abs(spline_gain_scale - self.spline_gain_scale)
+                > tol * self.spline_gain_scale):
+            self._rescale(friction_scale, spline_gain_scale)
+        self._pending = None
+
+    def _rescale(self, friction_scale: float, spline_gain_scale: float) -> None:
+        self.params = (self.base_params if friction_scale == 1.0 and spline_gain_scale == 1.0
+                       else scaled_params(self.base_params, friction_scale, spline_gain_scale))
+        self.friction_scale, self.spline_gain_scale = friction_scale, spline_gain_scale
 
     def set_request(self, t: float, torque: float) -> str:
         """Record a torque request at time ``t`` [s]; return a warning for a bad value."""
@@ -162,7 +264,15 @@ class TorqueController:
         if not math.isfinite(torque) or torque < 0.0:
             warning = f"torque request {torque!r} N m is not a finite value >= 0; using 0 N m"
             torque = 0.0
+        if torque != self.request:
+            self._moved = True
+            if abs(torque - self.request) > self.settings.step_threshold * max(torque,
+                                                                               self.request):
+                self._changed_at = t
+                if self.settings.trim_reset_on_change:
+                    self.trim = 0.0
         self.request = torque
+        self._now = t
         self._history.append((t, torque))
         window = self.settings.slope_window
         while len(self._history) > 2 and t - self._history[1][0] >= window:
@@ -180,29 +290,72 @@ class TorqueController:
         return max(-bound, min(bound, (r1 - r0) / (t1 - t0)))
 
     def fail_safe(self, reason: str) -> ControllerOutput:
-        """Command 0 Pa now (no rate limit) and forget the ramp state."""
+        """Command 0 Pa now (no rate limit) and forget the ramp and trim state."""
         self.target = 0.0
         self.pressure = 0.0
+        self.trim = 0.0
         return ControllerOutput(0.0, self.request, 0.0, True, f"fail-safe: {reason}")
 
+    def _trim_state(self, measured_torque: float, modelled_torque: float,
+                    modelled_scale: float) -> str:
+        """Return '' when the trim may integrate now, 'hold', or why it is off."""
+        s = self.settings
+        if s.trim_rate <= 0.0:
+            return "trim off"
+        if not (math.isfinite(measured_torque) and math.isfinite(modelled_torque)
+                and modelled_scale > 0.0):
+            self._missing_for += s.period
+            held = self._missing_for <= s.trim_hold + 1e-9  # float sum of periods
+            return "hold" if held else "no torque measurement"
+        self._missing_for = 0.0
+        if self.request <= 0.0:
+            return "no request"
+        if self._now - self._changed_at < s.trim_delay:
+            return "hold"
+        return ""
+
     def update(self, lamella_temperature: float, slip_speed: float,
-               spline_correction: float = 0.0) -> ControllerOutput:
+               spline_correction: float = 0.0, measured_torque: float = math.nan,
+               modelled_torque: float = math.nan,
+               modelled_scale: float = 1.0) -> ControllerOutput:
         """Run one tick; inputs are the estimator's latest values.
 
         Args:
             lamella_temperature: [°C]
             slip_speed: filtered slip speed [rad/s]
             spline_correction: the estimate's spline correction [Pa]
+            measured_torque: the estimate's measured torque [N m] (NaN: none; trim off)
+            modelled_torque: the estimate's modelled torque, same sample [N m]
+            modelled_scale: the friction scale that modelled torque was computed with [1];
+                the trim compares the measurement with *this controller's* model, so the
+                modelled torque is rescaled to ``friction_scale`` (torque ∝ μ)
 
         """
         s = self.settings
+        if not s.scale_hold or self._moved or self.request <= 0.0:
+            self._apply_pending()
+        self._moved = False
         step = s.torque_ramp_rate * s.period
         self.target += max(-step, min(step, self.request - self.target))
         lead = s.lead_time * self.request_slope()
-        cmd = command_pressure(self.params, max(self.target + lead, 0.0), lamella_temperature,
-                               slip_speed, spline_correction=spline_correction,
+        state = self._trim_state(measured_torque, modelled_torque, modelled_scale)
+        if state and state != "hold":
+            self.trim = 0.0  # off: released at once (the adapted model alone)
+        extra = self.trim * self.request
+        base = max(self.target + lead, 0.0)
+        cmd = command_pressure(self.params, base + extra if base > 0.0 else 0.0,
+                               lamella_temperature, slip_speed,
+                               spline_correction=spline_correction,
                                correction_gain=s.correction_gain,
-                               overshoot_margin=s.overshoot_margin, guard_torque=self.request)
+                               overshoot_margin=s.overshoot_margin,
+                               guard_torque=self.request + extra)
+        untrimmed = cmd.pressure
+        if extra != 0.0:
+            untrimmed = command_pressure(self.params, base, lamella_temperature, slip_speed,
+                                         spline_correction=spline_correction,
+                                         correction_gain=s.correction_gain,
+                                         overshoot_margin=s.overshoot_margin,
+                                         guard_torque=self.request).pressure
         reasons = list(cmd.reasons)
         if self.target != self.request:
             reasons.append("request ramping")
@@ -211,8 +364,25 @@ class TorqueController:
             reasons.append("pressure limit")
         rise, fall = s.rise_rate_limit * s.period, s.fall_rate_limit * s.period
         limited = self.pressure + max(-fall, min(rise, pressure - self.pressure))
+        # the limits win over the rate limits (a start from 0 Pa below min_pressure)
+        limited = min(max(limited, s.min_pressure), s.max_pressure)
         if limited != pressure:
             reasons.append("rate limit")
+        if not state:
+            own = abs(modelled_torque) * self.friction_scale / modelled_scale
+            error = (own - abs(measured_torque)) / self.request
+            pushes_up = error > self.trim
+            clamped = (limited < cmd.pressure and pushes_up) or \
+                (limited > cmd.pressure and not pushes_up)
+            if not clamped:  # anti-windup: conditional integration
+                gain = min(1.0, s.trim_rate * s.period)
+                self.trim += gain * (error - self.trim)
+                self.trim = max(-s.trim_limit, min(s.trim_limit, self.trim))
+        # the trim's share: this command minus the one the same tick gives without it
+        free = min(max(untrimmed, s.min_pressure), s.max_pressure)
+        free = self.pressure + max(-fall, min(rise, free - self.pressure))
+        free = min(max(free, s.min_pressure), s.max_pressure)
+        share = limited - free
         self.pressure = limited
         return ControllerOutput(limited, self.request, cmd.predicted_torque, bool(reasons),
-                                "; ".join(reasons))
+                                "; ".join(reasons), share)

@@ -22,6 +22,14 @@ follows at most one period after a timeout. Commands resume by themselves when f
 returns. Every published pressure is within the configured limits, whatever arrives (NaN or
 negative requests are treated as 0 N m and reported).
 
+Adapted model and trim: the target is inverted with μ scaled by the estimate's adapted
+``friction_scale`` (``controller.use_adapted_model``; a new scale is taken when the request
+changes, never during a hold) and, while the estimate carries a measured torque, an integral
+trim on it (``controller.trim_rate``, ``controller.trim_limit``, ``controller.trim_delay``;
+:class:`~clutch_ros.model.control.TorqueController` documents the law and its anti-windup)
+removes what the model still gets wrong; without a measurement it is off. The trim's share
+of every command is ``PressureCommand.trim_pressure`` [Pa]; the limits still bound it.
+
 Parameters: every ``controller.*`` setting and every model key applies live (the next tick)
 after validation: ranges by ROS, ``min_pressure <= max_pressure`` and the model's rules here;
 a refused change names its reason and changes nothing.
@@ -50,6 +58,7 @@ from clutch_ros.nodes.model_params import apply_model_changes, declare_model_par
 from clutch_ros.nodes.peers import Input, PeerWatch
 
 NAME = "controller"
+_C = ControllerSettings()  # the defaults of the trim parameters
 PARAMS = [
     ParamSpec("controller.rate", 100.0, "command publishing rate", "Hz", 1.0, 2000.0),
     ParamSpec("controller.min_pressure", 0.0, "lowest commanded pressure", "Pa", 0.0, 1e8),
@@ -69,6 +78,17 @@ PARAMS = [
               "steady-state inverse of (1 + margin) x request", "1", 0.0, 1.0),
     ParamSpec("controller.spline_correction_gain", 1.0, "weight of the dynamic spline-friction "
               "correction (0 = steady-state inverse only)", "1", 0.0, 2.0),
+    ParamSpec("controller.use_adapted_model", True, "invert the model with the estimate's "
+              "adapted friction_scale (and spline_gain_scale)"),
+    ParamSpec("controller.trim_rate", _C.trim_rate, "integral gain of the torque trim on the "
+              "measured torque, 1/its time constant; 0 = off (off anyway without a "
+              "measurement)", "1/s", 0.0, 100.0),
+    ParamSpec("controller.trim_limit", _C.trim_limit, "bound of the trim, a fraction of the "
+              "request", "1", 0.0, 1.0),
+    ParamSpec("controller.trim_delay", _C.trim_delay, "the trim holds this long after a step "
+              "of the request (the pack's step transient)", "s", 0.0, 10.0),
+    ParamSpec("controller.trim_hold", _C.trim_hold, "a torque measurement missing for up to "
+              "this long holds the trim (a late frame); longer releases it", "s", 0.0, 10.0),
     ParamSpec("controller.request_timeout", 0.5, "a torque request older than this is stale "
               "-> 0 Pa", "s", 0.001, 3600.0),
     ParamSpec("controller.rig_timeout", 0.25, "rig_state older than this is stale -> 0 Pa", "s",
@@ -135,7 +155,7 @@ class ControllerNode(Node):
         if reason:
             return SetParametersResult(successful=False, reason=reason)
         if new_params is not None:
-            self._ctl.params = new_params
+            self._ctl.set_base_params(new_params)
         if own:
             period_changed = settings.period != self._ctl.settings.period
             self._cfg = cfg
@@ -181,14 +201,23 @@ class ControllerNode(Node):
             self._counts["failsafe"] += 1
         else:
             est = self._estimate
+            # scale 0 = an estimator without adaptation fields (the message default): scale 1
+            scale = est.friction_scale if est.friction_scale > 0.0 else 1.0
+            if self._cfg["controller.use_adapted_model"]:
+                gain = est.spline_gain_scale if est.spline_gain_scale > 0.0 else 1.0
+                self._ctl.set_model_scale(scale, gain)
+            else:
+                self._ctl.set_model_scale(1.0, 1.0)
             out = self._ctl.update(est.lamella_temperature, est.slip_speed_filtered,
-                                   est.spline_correction)
+                                   est.spline_correction, est.measured_torque,
+                                   est.modelled_torque, scale)
         msg = PressureCommand()
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.pressure = float(out.pressure)
         msg.requested_torque = float(out.requested_torque)
         msg.predicted_torque = float(out.predicted_torque)
         msg.limited, msg.reason = out.limited, out.reason
+        msg.trim_pressure = float(out.trim_pressure)
         self._counts["commands"] += 1
         self._counts["limited"] += out.limited
         self._last_reason = out.reason
@@ -197,7 +226,8 @@ class ControllerNode(Node):
     def _diagnose(self):
         now = self._now()
         values = dict(self._counts, pressure_pa=self._ctl.pressure, target_nm=self._ctl.target,
-                      last_reason=self._last_reason, **self._peers.ages(now))
+                      last_reason=self._last_reason, friction_scale=self._ctl.friction_scale,
+                      trim=self._ctl.trim, **self._peers.ages(now))
         stale = self._stale_reason(now)
         if stale:
             return "WARN", f"fail-safe 0 Pa: {stale}", values
@@ -219,7 +249,9 @@ def _settings(cfg: dict) -> ControllerSettings:
         torque_ramp_rate=cfg["controller.torque_ramp_rate"],
         lead_time=cfg["controller.lead_time"], lead_max_rate=cfg["controller.lead_max_rate"],
         overshoot_margin=cfg["controller.overshoot_margin"],
-        correction_gain=cfg["controller.spline_correction_gain"])
+        correction_gain=cfg["controller.spline_correction_gain"],
+        trim_rate=cfg["controller.trim_rate"], trim_limit=cfg["controller.trim_limit"],
+        trim_delay=cfg["controller.trim_delay"], trim_hold=cfg["controller.trim_hold"])
 
 
 def main(args=None) -> int:

@@ -9,7 +9,7 @@ from clutch_msgs.msg import CanFrame, RigState
 from clutch_ros.nodes.common import sec_to_stamp
 from clutch_ros.rigstate import fill_msg
 
-__all__ = ["can_frame_to_ros", "estimate_to_msg", "rig_state_to_ros"]
+__all__ = ["adaptation_to_msg", "can_frame_to_ros", "estimate_to_msg", "rig_state_to_ros"]
 
 
 def estimate_to_msg(est, header, msg_type):
@@ -36,6 +36,17 @@ def estimate_to_msg(est, header, msg_type):
     return msg
 
 
+
+
+def adaptation_to_msg(msg, status):
+    """Fill the adaptation fields of a ``ClutchEstimate`` from an ``AdaptationStatus``."""
+    msg.friction_scale = float(status.friction_scale)
+    msg.friction_scale_std = float(status.friction_scale_std)
+    msg.spline_gain_scale = float(status.spline_gain_scale)
+    msg.spline_gain_scale_std = float(status.spline_gain_scale_std)
+    msg.adapting = bool(status.adapting)
+    msg.adaptation_frozen = status.state == "frozen"
+    return msg
 
 
 def rig_state_to_ros(sample, offset: float = 0.0):

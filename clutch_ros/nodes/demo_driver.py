@@ -99,4 +99,5 @@ class DemoDriver(Node):
         return (f"[{t:5.1f}/{self.duration:.1f} s] request {fmt(request_at(self.profile, t))} "
                 f"N m | measured {fmt(rig.measured_torque if rig else None)} | modelled "
                 f"{fmt(est.modelled_torque if est else None)} | pressure "
-                f"{fmt(cmd.pressure / 1e5 if cmd else None)} bar")
+                f"{fmt(cmd.pressure / 1e5 if cmd else None)} bar | mu x "
+                f"{est.friction_scale if est else math.nan:.3f}")

@@ -8,6 +8,17 @@ duplicated or older than ``estimator.max_sample_age`` are skipped, counted and r
 (``clutch.*``, ``friction.*``, ``spline.*``, ``slip.*``); runtime changes are validated by the
 model and rejected with its reason (their ranges are the model's, stated in the descriptors'
 ``additional_constraints``), and applied without losing the pack state.
+
+Online adaptation (:mod:`clutch_ros.model.adaptation`, parameters ``adapt.*``): while a
+plausible torque measurement is present (``has_measured_torque``) and the clutch slips under
+load, a friction scale (a multiplier of μ) is estimated by recursive least squares with
+forgetting and applied to the model; ``ClutchEstimate`` carries it (``friction_scale``,
+``friction_scale_std``, ``spline_gain_scale``, ``adapting``, ``adaptation_frozen``). When the
+measurement drops out or turns implausible the adaptation freezes, keeps what it learned, and
+``/diagnostics`` says so (WARN, with the reason). Setting ``adapt.save_params_file`` to a path
+writes the adapted parameters there as a complete parameter file (``ros2 param set
+/estimator adapt.save_params_file /path/adapted.yaml``); the nodes and every ``clutch``
+subcommand accept it.
 """
 
 from __future__ import annotations
@@ -21,7 +32,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from clutch_ros.config.params_file import load_flat
 from clutch_ros.config.presets import default_preset
-from clutch_ros.model import ClutchEstimator, SampleRejected
+from clutch_ros.errors import ClutchError
+from clutch_ros.model import SampleRejected
+from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimator
 from clutch_ros.nodes.common import (
     HARDWARE_ID_PARAM,
     Diagnostics,
@@ -32,7 +45,7 @@ from clutch_ros.nodes.common import (
     run_node,
     stamp_to_sec,
 )
-from clutch_ros.nodes.convert import estimate_to_msg
+from clutch_ros.nodes.convert import adaptation_to_msg, estimate_to_msg
 from clutch_ros.nodes.loss_tracker import LossTracker
 from clutch_ros.nodes.model_params import (
     apply_model_changes,
@@ -40,6 +53,7 @@ from clutch_ros.nodes.model_params import (
     model_param_specs,
 )
 from clutch_ros.nodes.peers import Input, PeerWatch
+from clutch_ros.offline.adapt import save_adapted_params
 
 NAME = "estimator"
 PARAMS = [
@@ -55,6 +69,37 @@ PARAMS = [
               "the pack to equilibrium", "s", 0.001, 3600.0),
     HARDWARE_ID_PARAM,
 ]
+_A = AdaptationSettings()
+ADAPT_PARAMS = [
+    ParamSpec("adapt.enabled", True, "adapt the friction scale (a multiplier of mu) online "
+              "while a plausible torque measurement is present (has_measured_torque)"),
+    ParamSpec("adapt.forgetting_time", _A.forgetting_time, "memory of the adaptation, in "
+              "adaptation time", "s", 0.1, 1e5),
+    ParamSpec("adapt.scale_min", _A.scale_min, "lower bound of the friction scale", "1",
+              0.05, 1.0),
+    ParamSpec("adapt.scale_max", _A.scale_max, "upper bound of the friction scale", "1",
+              1.0, 20.0),
+    ParamSpec("adapt.min_torque", _A.min_torque, "adapt only above this |modelled torque|",
+              "N m", 0.0, 1e5),
+    ParamSpec("adapt.min_slip", _A.min_slip, "adapt only above this |filtered slip speed|",
+              "rad/s", 0.0, 100.0),
+    ParamSpec("adapt.max_torque_rate", _A.max_torque_rate, "the friction scale adapts only "
+              "while |d modelled torque/dt| stays below this (quasi-steady) ...", "N m/s",
+              1.0, 1e7),
+    ParamSpec("adapt.settle_time", _A.settle_time, "... for at least this long", "s",
+              0.0, 60.0),
+    ParamSpec("adapt.recover_time", _A.recover_time, "plausible measurements needed after a "
+              "dropout or an implausible value before adapting again", "s", 0.0, 3600.0),
+    ParamSpec("adapt.dropout_grace", _A.dropout_grace, "a torque measurement missing for up "
+              "to this long only pauses adaptation (a late frame); longer freezes it with a "
+              "diagnostic", "s", 0.0, 60.0),
+    ParamSpec("adapt.measurement_std", _A.measurement_std, "standard deviation of the torque "
+              "error assumed by the estimator (absolute part)", "N m", 1e-3, 1e5),
+    ParamSpec("adapt.spline_gain", False, "also adapt spline.gain (ff_t and ff_v laws only; "
+              "identified from the transients)"),
+    ParamSpec("adapt.save_params_file", "", "set to a file path to write the adapted "
+              "parameters there now (a complete parameter file)"),
+]
 
 
 class EstimatorNode(Node):
@@ -65,8 +110,10 @@ class EstimatorNode(Node):
 
         self._cfg = declare_params(self, PARAMS)
         self._params = declare_model_params(self, default_preset("flexiforce_8"))
-        self._estimator = ClutchEstimator(self._params,
-                                          max_gap_s=self._cfg["estimator.max_gap"])
+        self._cfg.update(declare_params(self, ADAPT_PARAMS))
+        self._estimator = AdaptiveEstimator(self._params, _adapt_settings(self._cfg),
+                                            max_gap_s=self._cfg["estimator.max_gap"])
+        self._saved = ""
         self._skipped: dict[str, int] = {}
         self._accepted = 0
         self._accepted_at_last_diag = 0
@@ -112,16 +159,18 @@ class EstimatorNode(Node):
             return
         measured = msg.measured_torque if msg.has_measured_torque else math.nan
         try:
-            est = self._estimator.update(stamp, msg.actuating_pressure, msg.lamella_temperature,
-                                         msg.slip_speed, measured)
+            res = self._estimator.update(stamp, msg.actuating_pressure,
+                                         msg.lamella_temperature, msg.slip_speed, measured)
         except SampleRejected as err:
             self._skip(type(err).__name__, str(err))
             return
+        est = res.estimate
         if not math.isfinite(est.modelled_torque):  # defence in depth: never publish NaN
             self._skip("non_finite_output", "model produced a non-finite torque")
             return
         self._accepted += 1
-        self._pub.publish(estimate_to_msg(est, msg.header, self._pub.msg_type))
+        out = estimate_to_msg(est, msg.header, self._pub.msg_type)
+        self._pub.publish(adaptation_to_msg(out, res.adaptation))
 
     def _skip(self, kind: str, why: str, count: int = 1) -> None:
         self._skipped[kind] = self._skipped.get(kind, 0) + count
@@ -136,13 +185,32 @@ class EstimatorNode(Node):
         new_params, reason = apply_model_changes(self._params, params)
         if reason:
             return SetParametersResult(successful=False, reason=reason)
+        adapt = {p.name: p.value for p in params if p.name.startswith("adapt.")}
+        settings = None
+        if set(adapt) - {"adapt.save_params_file"}:
+            try:
+                settings = _adapt_settings({**self._cfg, **adapt})
+            except ClutchError as err:
+                return SetParametersResult(successful=False, reason=str(err))
+        target = adapt.get("adapt.save_params_file", "")
+        if target:
+            try:  # written now, so a refused write leaves the parameter unchanged
+                save_adapted_params(target, self._estimator, "the live estimator node")
+            except (ClutchError, OSError) as err:
+                return SetParametersResult(successful=False, reason=str(err))
+            self._saved = target
+            self.get_logger().info(f"adapted parameters written to {target} (friction scale "
+                                   f"{self._estimator.friction_scale:.4f})")
         if new_params is not None:
-            self._estimator.set_params(new_params)
+            self._estimator.set_base_params(new_params)
             self._params = new_params
+        if settings is not None:
+            self._estimator.set_settings(settings)
         own = {p.name: p.value for p in params if p.name.startswith("estimator.")}
         self._cfg.update(own)
+        self._cfg.update(adapt)
         if "estimator.max_gap" in own:
-            self._estimator.max_gap_s = own["estimator.max_gap"]
+            self._estimator.estimator.max_gap_s = own["estimator.max_gap"]
         if "estimator.input_timeout" in own:
             self._peers.set_timeout("rig data", own["estimator.input_timeout"])
         return SetParametersResult(successful=True)
@@ -155,9 +223,18 @@ class EstimatorNode(Node):
                   "spline_law": self._params.spline.law, "last_error": self._last_error}
         values.update({f"skipped_{k}": v for k, v in self._skipped.items()})
         values.update(self._peers.ages(now))
+        ae = self._estimator
+        status = ae.status
+        values.update(friction_scale=ae.friction_scale,
+                      friction_scale_std=status.friction_scale_std,
+                      spline_gain_scale=ae.spline_gain_scale, adaptation_state=status.state,
+                      adaptation_reason=status.reason, adaptation_saved_to=self._saved,
+                      **{f"adaptation_{k}": v for k, v in ae.counts.items()})
         silent = self._peers.silent(now)
         if silent:
             return "WARN", silent, values
+        if status.state == "frozen":
+            return "WARN", f"adaptation frozen: {status.reason}", values
         if self._skipped:
             return "OK", f"running; skipped {sum(self._skipped.values())} samples", values
         return "OK", "running", values
@@ -175,7 +252,20 @@ def _rig_state_type():
 
 def main(args=None) -> int:
     """Console entry point: ``ros2 run clutch_ros estimator``."""
-    return run_node(NAME, __doc__, PARAMS + _model_specs_for_help(), EstimatorNode, args)
+    return run_node(NAME, __doc__, PARAMS + ADAPT_PARAMS + _model_specs_for_help(),
+                    EstimatorNode, args)
+
+
+def _adapt_settings(cfg: dict) -> AdaptationSettings:
+    """Return the AdaptationSettings of the ``adapt.*`` values of ``cfg`` (may raise)."""
+    return AdaptationSettings(
+        enabled=bool(cfg["adapt.enabled"]), forgetting_time=cfg["adapt.forgetting_time"],
+        scale_min=cfg["adapt.scale_min"], scale_max=cfg["adapt.scale_max"],
+        min_torque=cfg["adapt.min_torque"], min_slip=cfg["adapt.min_slip"],
+        max_torque_rate=cfg["adapt.max_torque_rate"], settle_time=cfg["adapt.settle_time"],
+        recover_time=cfg["adapt.recover_time"], dropout_grace=cfg["adapt.dropout_grace"],
+        measurement_std=cfg["adapt.measurement_std"],
+        spline_gain=bool(cfg["adapt.spline_gain"]))
 
 
 def _model_specs_for_help():

@@ -13,6 +13,7 @@ import numpy as np
 
 from clutch_ros.bag.reader import BagReader
 from clutch_ros.model.metrics import longest_run
+from clutch_ros.offline.steady_state import plateau_errors
 from clutch_ros.rig.request_profile import request_at, settled_mask
 
 __all__ = ["DemoSeries", "closed_loop_summary", "load_series"]
@@ -28,7 +29,8 @@ class DemoSeries:
 
         rig_t, meas, press = [], [], []
         est_t, model, ref, est_meas, pdiff = [], [], [], [], []
-        cmd_t, cmd_p = [], []
+        scale, scale_std = [], []
+        cmd_t, cmd_p, cmd_trim = [], [], []
         with BagReader(bag) as reader:
             for topic, stamp_ns, msg in reader.messages(
                     ["/rig_state", "/clutch_estimate", "/pressure_command"]):
@@ -42,9 +44,12 @@ class DemoSeries:
                     ref.append(msg.reference_torque)
                     est_meas.append(msg.measured_torque)
                     pdiff.append(msg.pressure_difference)
+                    scale.append(msg.friction_scale)
+                    scale_std.append(msg.friction_scale_std)
                 else:
                     cmd_t.append(stamp_ns * 1e-9)
                     cmd_p.append(msg.pressure)
+                    cmd_trim.append(msg.trim_pressure)
         self.rig_stamp = np.asarray(rig_t)
         self.est_stamp = np.asarray(est_t)
         self.rig_time = np.asarray(rig_t) - started_at
@@ -56,8 +61,11 @@ class DemoSeries:
         self.reference = np.asarray(ref)
         self.est_measured = np.asarray(est_meas)
         self.pressure_difference = np.asarray(pdiff)
+        self.friction_scale = np.asarray(scale)
+        self.friction_scale_std = np.asarray(scale_std)
         self.cmd_time = np.asarray(cmd_t) - started_at
         self.cmd_pressure = np.asarray(cmd_p)
+        self.cmd_trim = np.asarray(cmd_trim)
         self.settled = settled_mask(profile, self.rig_time)
 
 
@@ -86,8 +94,13 @@ def _coverage(rig_stamps, est_stamps) -> float:
     return float(np.mean([v in have for v in np.round(live * 1e6).astype(np.int64).tolist()]))
 
 
-def closed_loop_summary(bag, profile, started_at: float) -> dict:
-    """Return the demo's figures (see :mod:`clutch_ros.cli.demo`) from its bag."""
+def closed_loop_summary(bag, profile, started_at: float, rated_torque: float | None = None
+                        ) -> dict:
+    """Return the demo's figures (see :mod:`clutch_ros.cli.demo`) from its bag.
+
+    ``rated_torque`` [N m] sets the 10 % threshold of the plateaus counted by
+    ``steady_state_error`` (default: the profile's largest request / 0.9, the demo's).
+    """
     s = load_series(bag, profile, started_at)
     peak = max(max(seg.start, seg.end) for seg in profile)
     use = s.settled & (s.request > MIN_FRACTION * peak) & np.isfinite(s.measured)
@@ -95,7 +108,20 @@ def closed_loop_summary(bag, profile, started_at: float) -> dict:
     within = float(np.mean(np.abs(ratio[use] - 1.0) <= BAND)) if use.any() else math.nan
     worst = float(np.nanmax(ratio)) if use.any() else math.nan
     over = np.nan_to_num(ratio, nan=0.0) > 1.0 + BAND
+    rated = rated_torque if rated_torque is not None else peak / 0.9
+    plateaus = plateau_errors(profile, s.rig_time, s.measured, rated)
+    errors = [p.error for p in plateaus]
+    last = len(s.friction_scale) - 1
     return {
+        "steady_state_error": (float(max(errors)) if errors and all(np.isfinite(errors))
+                               else math.nan),
+        "plateau_errors": [{"start_s": p.plateau.start, "end_s": p.plateau.end,
+                            "request_nm": p.plateau.request, "mean_measured_nm": p.mean_measured,
+                            "error": p.error, "samples": p.samples} for p in plateaus],
+        "plateaus": len(plateaus),
+        "friction_scale": float(s.friction_scale[last]) if last >= 0 else math.nan,
+        "friction_scale_std": float(s.friction_scale_std[last]) if last >= 0 else math.nan,
+        "max_trim_pa": float(np.abs(s.cmd_trim).max()) if len(s.cmd_trim) else 0.0,
         "within_10pct": within,
         "estimate_coverage": _coverage(s.rig_stamp, s.est_stamp),
         "settled_samples": int(use.sum()),

@@ -172,12 +172,18 @@ class ReplayJob:
 
 
 def write_estimates(
-    out: str | Path, result: ReplayResult, *, storage: str = "mcap", compression: str = "none"
+    out: str | Path,
+    result: ReplayResult,
+    *,
+    storage: str = "mcap",
+    compression: str = "none",
+    extra_columns: dict[str, np.ndarray] | None = None,
 ) -> int:
     """Write the ClutchEstimate stream of ``result`` to a new bag on ``/clutch_estimate``.
 
     One message per :func:`published_rows` row; header stamp and frame id of its input
-    sample, bag timestamp = header stamp.
+    sample, bag timestamp = header stamp. ``extra_columns`` adds further numeric message
+    fields, one value per published row (the adaptive replay's ``friction_scale`` ...).
 
     Returns:
         the number of messages written.
@@ -185,6 +191,7 @@ def write_estimates(
     """
     batch = result.batch
     serializer, rows, stamps, columns = estimate_layout(result)
+    columns.update(extra_columns or {})
     custom = {"clutch_ros.replay_of": str(result.bag), "clutch_ros.spline_law": batch.spline_law}
     with BagWriter(
         out, storage=storage, compression=compression, delete_on_error=True, custom_data=custom

@@ -2,7 +2,9 @@
 
 1. The simulated rig (truth plant, Table 3 sequence 3 at 10 rpm, 50 Hz) gives a RigState
    run, written once as MCAP and once as sqlite3.
-2. Offline: ``clutch replay BAG --params flexiforce_8 -o OUT`` for each.
+2. Offline: ``clutch replay BAG --params flexiforce_8 --adapt -o OUT`` for each (the live
+   estimator adapts its friction scale by default, README "Adaptive estimation", so the
+   offline side is the adaptive replay, which runs the same per-sample code).
 3. Live: the real ``estimator`` node process (``use_sim_time``, same preset) is fed by the
    ``bag_player`` node process playing the MCAP bag with /clock; the ``recorder`` node
    process records the ClutchEstimate stream the estimator publishes.
@@ -34,7 +36,8 @@ FIELDS = (
     "modelled_torque", "reference_torque", "measured_torque", "torque_accuracy",
     "friction_coefficient", "lamella_normal_force", "spline_friction_force", "front_pressure",
     "rear_pressure", "pressure_difference", "slip_speed_filtered", "actuating_pressure",
-    "lamella_temperature", "overshoot", "undershoot",
+    "lamella_temperature", "overshoot", "undershoot", "friction_scale", "friction_scale_std",
+    "spline_gain_scale", "adapting", "adaptation_frozen",
 )  # fmt: skip
 
 
@@ -106,7 +109,8 @@ def test_replay_of_mcap_and_sqlite3_bags_equals_the_live_estimator(ros_env, tmp_
     offline = {}
     for storage, bag in bags.items():
         out = tmp_path / f"replay_{storage}"
-        assert clutch(["replay", str(bag), "--params", "flexiforce_8", "-o", str(out)]) == 0
+        assert clutch(["replay", str(bag), "--params", "flexiforce_8", "--adapt",
+                       "-o", str(out)]) == 0
         offline[storage] = read_columns(out, "/clutch_estimate")
     capsys.readouterr()
 

@@ -76,3 +76,14 @@ def test_plots_and_bag_written(demo_run):
     for plot in summary["plots"]:
         data = open(plot, "rb").read(8)
         assert data == b"\x89PNG\r\n\x1a\n"
+
+
+def test_adaptive_by_default_with_steady_state_error(demo_run):
+    """The default run adapts (scale learned, trim used) and reports its plateau error."""
+    _, summary = demo_run
+    assert summary["adaptive"] is True
+    assert summary["plateaus"] == 8  # 0.5, 0.9, 0.3 rated and the hold after the ramp, x2
+    errors = [p["error"] for p in summary["plateau_errors"]]
+    assert summary["steady_state_error"] == max(errors)
+    assert 1.0 < summary["friction_scale"] < 1.15  # rig_truth: mu +6 % at 35 degC
+    assert summary["max_trim_pa"] > 0.0

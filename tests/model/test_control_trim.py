@@ -1,0 +1,126 @@
+"""The controller's adapted-model inversion and integral torque trim (model.control).
+
+A static plant whose true torque is ``c`` times the model's (``T = c · C(p)``, the capacity
+of Eq. 1) has a closed-form answer: the pressure with ``c · C(p) = T*``; the trim must find it
+whatever ``c``, stay within its bounds and never push the pressure outside the limits.
+"""
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from numpy.testing import assert_allclose
+from scipy.optimize import brentq
+
+from clutch_ros.model.adaptation import scaled_params
+from clutch_ros.model.control import ControllerSettings, TorqueController
+from clutch_ros.model.inverse import capacity_scalar
+
+W10 = 10 * 2 * math.pi / 60  # [rad/s]
+TEMP = 40.0  # [°C]
+
+
+def _static_loop(params, settings, request, c, ticks=400, measured=True, scale=1.0):
+    """Run the controller on a static plant T = c C(p); return (controller, outputs)."""
+    ctl = TorqueController(params, settings)
+    ctl.set_model_scale(scale)
+    outs = []
+    for k in range(ticks):
+        t = k * settings.period
+        ctl.set_request(t, request)
+        p = ctl.pressure
+        model = capacity_scalar(params, p, TEMP, W10)  # the estimator at scale 1
+        meas = c * model if measured else math.nan
+        outs.append(ctl.update(TEMP, W10, 0.0, meas, model, 1.0))
+    return ctl, outs
+
+
+@pytest.mark.parametrize("c", [0.9, 0.96, 1.0, 1.07, 1.12])
+def test_trim_removes_a_constant_model_error(flexiforce, c):
+    """Measured = c x model: the trim converges to the pressure the true plant needs."""
+    s = ControllerSettings(rise_rate_limit=1e9, fall_rate_limit=1e9)
+    request = 600.0
+    ctl, outs = _static_loop(flexiforce, s, request, c)
+    exact = brentq(lambda p: c * capacity_scalar(flexiforce, p, TEMP, W10) - request, 0, 50e5,
+                   xtol=1e-6)
+    # the trim integrates with a 0.2 s time constant: after 4 s it has converged to ~1e-8
+    assert_allclose(ctl.pressure, exact, rtol=1e-6)
+    assert_allclose(ctl.trim, (1.0 / c - 1.0), rtol=1e-5, atol=1e-9)
+    assert_allclose(outs[-1].trim_pressure, ctl.pressure - capacity_inverse(flexiforce, request),
+                    rtol=1e-5, atol=1e-3)
+
+
+def capacity_inverse(params, torque):
+    """Return p [Pa] with C(p) = torque at the test's operating point."""
+    return brentq(lambda p: capacity_scalar(params, p, TEMP, W10) - torque, 0, 50e5, xtol=1e-6)
+
+
+def test_trim_off_without_measurement(flexiforce):
+    s = ControllerSettings(rise_rate_limit=1e9, fall_rate_limit=1e9)
+    ctl, outs = _static_loop(flexiforce, s, 600.0, 1.1, measured=False)
+    assert ctl.trim == 0.0 and all(o.trim_pressure == 0.0 for o in outs)
+    assert_allclose(ctl.pressure, capacity_inverse(flexiforce, 600.0), rtol=1e-9)
+
+
+def test_trim_released_when_the_measurement_drops_out(flexiforce):
+    s = ControllerSettings(rise_rate_limit=1e9, fall_rate_limit=1e9)
+    ctl, _ = _static_loop(flexiforce, s, 600.0, 1.1)
+    held = ctl.trim
+    assert held != 0.0
+    ticks = round(s.trim_hold / s.period)
+    for _ in range(ticks):  # a late frame or two: the trim holds
+        out = ctl.update(TEMP, W10, 0.0, math.nan, 600.0)
+        assert ctl.trim == held and out.trim_pressure != 0.0
+    out = ctl.update(TEMP, W10, 0.0, math.nan, 600.0)  # longer: released
+    assert ctl.trim == 0.0 and out.trim_pressure == 0.0
+
+
+def test_adapted_scale_inverts_the_scaled_model(flexiforce):
+    """With the right scale the feed-forward alone is exact: no trim needed."""
+    s = ControllerSettings(rise_rate_limit=1e9, fall_rate_limit=1e9, trim_rate=0.0)
+    ctl, _ = _static_loop(flexiforce, s, 800.0, 1.0, scale=1.15)
+    scaled = scaled_params(flexiforce, 1.15)
+    assert_allclose(capacity_scalar(scaled, ctl.pressure, TEMP, W10), 800.0, rtol=1e-8)
+
+
+def test_scale_waits_for_a_request_change(flexiforce):
+    """scale_hold: a new scale during a hold is taken at the next change of the request."""
+    ctl = TorqueController(flexiforce, ControllerSettings(trim_rate=0.0))
+    ctl.set_request(0.0, 500.0)
+    ctl.update(TEMP, W10)
+    ctl.set_request(0.01, 500.0)
+    ctl.set_model_scale(1.2)
+    ctl.update(TEMP, W10)
+    assert ctl.friction_scale == 1.0
+    ctl.set_request(0.02, 510.0)
+    ctl.update(TEMP, W10)
+    assert ctl.friction_scale == 1.2
+
+
+def test_anti_windup_at_the_pressure_limit(flexiforce):
+    """Unreachable torque (plant far weaker): the trim stops at its bound, pressure at max."""
+    s = ControllerSettings(rise_rate_limit=1e9, fall_rate_limit=1e9, max_pressure=20e5)
+    ctl, outs = _static_loop(flexiforce, s, 1000.0, 0.5)
+    assert ctl.pressure == 20e5
+    assert abs(ctl.trim) <= s.trim_limit
+    assert all(o.pressure <= 20e5 for o in outs)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.tuples(st.floats(-100, 3000),
+                          st.one_of(st.floats(-5000, 5000), st.just(math.nan),
+                                    st.just(math.inf)),
+                          st.floats(-5000, 5000), st.floats(0.3, 3.0)),
+                min_size=1, max_size=80))
+def test_pressure_never_outside_the_limits(flexiforce, rows):
+    """Adversarial requests and torques: every command within [min, max], |trim| bounded."""
+    s = ControllerSettings(min_pressure=2e5, max_pressure=30e5, trim_delay=0.0)
+    ctl = TorqueController(flexiforce, s)
+    for k, (request, meas, model, scale) in enumerate(rows):
+        ctl.set_request(k * s.period, request)
+        ctl.set_model_scale(scale)
+        out = ctl.update(TEMP, W10, 0.0, meas, model, 1.0)
+        assert s.min_pressure <= out.pressure <= s.max_pressure
+        assert abs(ctl.trim) <= s.trim_limit
+        assert math.isfinite(out.trim_pressure)
