@@ -153,10 +153,13 @@ def test_runtime_change_keeps_the_pack_state(estimator):
         # applied from the first sample after the change: the node's μ is the core's ...
         assert node.friction_coefficient == pytest.approx(want.friction_coefficient, rel=1e-9)
         if i == len(before):
-            # ... and scales with μ_ref at the change (same pack state; later samples differ a
-            # little more, as μ's pressure loss follows the pack's own normal force, issue 12)
+            # ... and scales with μ_ref at the change. Not to round-off: μ's pressure loss
+            # follows the pack's own normal force (issue 12), which the changed μ moves within
+            # the step by ~1e-5 relative; rtol 1e-3 still tells a scaled μ from an unscaled
+            # one (mu_new / mu_old differs from 1 by far more).
+            assert abs(mu_new / mu_old - 1.0) > 0.05
             assert node.friction_coefficient == pytest.approx(
-                ref.friction_coefficient * mu_new / mu_old, rel=1e-9)
+                ref.friction_coefficient * mu_new / mu_old, rel=1e-3)
         assert node.reference_torque == pytest.approx(ref.reference_torque * mu_new / mu_old,
                                                       rel=1e-9)
         if i == len(before):
