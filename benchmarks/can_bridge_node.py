@@ -198,7 +198,7 @@ class _Ros:
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.executors import SingleThreadedExecutor
 
-        from clutch_ros.nodes.common import sensor_qos
+        from clutch_ros.nodes.qos import sensor_qos
 
         self.context = rclpy.context.Context()
         rclpy.init(context=self.context)

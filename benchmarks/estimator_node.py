@@ -46,7 +46,8 @@ def _echo_main(reliable: bool) -> int:
     from clutch_msgs.msg import RigState
     from rclpy.node import Node
 
-    from clutch_ros.nodes.common import reliable_qos, run_node, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+    from clutch_ros.nodes.runner import run_node
 
     class EchoNode(Node):
         """Republish every RigState unchanged (best effort, or reliable as the estimator)."""
@@ -65,7 +66,7 @@ def _pub_main(argv: list[str]) -> int:
     import rclpy
     from clutch_msgs.msg import RigState
 
-    from clutch_ros.nodes.common import sensor_qos
+    from clutch_ros.nodes.qos import sensor_qos
 
     seconds, rates = float(argv[0]), [float(r) for r in argv[1].split(",")]
     rclpy.init(args=[sys.argv[0], *argv[2:]])
@@ -106,7 +107,7 @@ def _measure(cmd: list[str], out_topic: str, out_type, reliable: bool, rates: li
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 
     domain = str(random.randint(150, 230))
     os.environ.update(ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")

@@ -15,6 +15,9 @@ import signal
 import sys
 from pathlib import Path
 
+from clutch_ros.config.params_file import load_params
+from clutch_ros.config.presets import preset_path
+from clutch_ros.dashboard import BagPlayer, BagStream, DashboardServer
 from clutch_ros.errors import ClutchError
 
 __all__ = ["add_parser", "run"]
@@ -64,7 +67,7 @@ def run(args) -> int:
 
 
 def _live(args) -> int:
-    from clutch_ros.nodes.dashboard import main as node_main
+    from clutch_ros.nodes.dashboard import main as node_main  # rclpy only in live mode
 
     return node_main(["--ros-args", "-p", f"dashboard.port:={args.port}",
                       "-p", f"dashboard.address:={args.host}",
@@ -72,9 +75,6 @@ def _live(args) -> int:
 
 
 def _bag(args) -> int:
-    from clutch_ros.config.params_file import load_params
-    from clutch_ros.config.presets import preset_path
-    from clutch_ros.dashboard import BagPlayer, BagStream, DashboardServer
 
     rate = 1.0 if args.rate is None else args.rate
     if not 0.0 < rate <= 1000.0:

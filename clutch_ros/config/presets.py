@@ -33,6 +33,7 @@ def params_dir() -> Path:
     if source.is_dir():
         return source
     try:
+        # optional: only an installed (colcon) package has an ament index to look in
         from ament_index_python.packages import get_package_share_directory
 
         return Path(get_package_share_directory("clutch_ros")) / "params"

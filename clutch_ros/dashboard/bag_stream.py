@@ -23,10 +23,12 @@ from typing import Any
 
 import numpy as np
 
+from clutch_ros.bag.reader import BagReader
 from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, RIG_STATE
 from clutch_ros.dashboard.errors import DashboardError
 from clutch_ros.dashboard.server import absolute
 from clutch_ros.dashboard.topics import TOPICS, DashboardTopic
+from clutch_ros.offline.replay import estimate_layout
 
 __all__ = ["BagStream", "estimate_frames"]
 
@@ -45,8 +47,6 @@ def estimate_frames(result: Any, block: int = _BLOCK) -> Iterator[tuple[int, int
     stores for that sample.
 
     """
-    from clutch_ros.offline.replay import estimate_layout
-
     serializer, rows, stamps, columns = estimate_layout(result)
     size = serializer.size
     for first in range(0, len(rows), block):
@@ -87,7 +87,6 @@ class BagStream:
         topics: tuple[DashboardTopic, ...] = TOPICS,
         namespace: str = "/",
     ):
-        from clutch_ros.bag.reader import BagReader
 
         self.path = Path(bag)
         wanted = {absolute(t.name, namespace): t.typename for t in topics}
@@ -129,8 +128,6 @@ class BagStream:
         ``time_ns`` is the bag (receive) time [ns since epoch]; for a computed estimate it is
         the bag time of its RigState input.
         """
-        from clutch_ros.bag.reader import BagReader
-
         with BagReader(self.path) as reader:
             raw = (
                 (int(m.timestamp_ns), 0, m.topic, bytes(m.msg))

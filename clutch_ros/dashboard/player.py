@@ -21,6 +21,7 @@ import threading
 import time
 from typing import Any
 
+from clutch_ros.bag.typestore import clutch_typestore, make_msg
 from clutch_ros.dashboard.errors import DashboardError
 from clutch_ros.dashboard.server import DashboardServer
 from clutch_ros.dashboard.topics import DIAGNOSTIC_ARRAY
@@ -49,8 +50,6 @@ def diagnostic_array_cdr(
         values: key/value pairs (rendered as strings).
 
     """
-    from clutch_ros.bag.typestore import clutch_typestore, make_msg
-
     store = clutch_typestore()
     pairs = [
         make_msg("diagnostic_msgs/msg/KeyValue", key=str(k), value=_fmt(v))

@@ -114,7 +114,7 @@ class DashboardServer:
         namespace: str = "/",
         name: str = "clutch_ros dashboard",
     ):
-        import foxglove
+        import foxglove  # loads the SDK's native server: only when a dashboard is served
 
         if int(backlog) < 1:
             raise DashboardError(f"message backlog must be >= 1 message, not {backlog}")

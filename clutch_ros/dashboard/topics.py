@@ -30,6 +30,7 @@ from clutch_ros.bag.typestore import (
     TORQUE_REQUEST,
     Typestore,
     clutch_typestore,
+    msg_class,
 )
 
 __all__ = [
@@ -88,8 +89,6 @@ def message_definition(typename: str, store: Typestore | None = None) -> str:
         UnknownTypeError: the type is not registered.
 
     """
-    from clutch_ros.bag.typestore import msg_class
-
     store = store or clutch_typestore()
     msg_class(typename, store)  # a clear UnknownTypeError instead of rosbags' KeyError
     return _definition(store, typename)

@@ -1,8 +1,10 @@
 """Thin rclpy nodes of clutch_ros, one Node class per module.
 
-``can_bridge``, ``rig_sim``, ``estimator``, ``controller``, ``recorder``, ``bag_player``:
+``can_bridge``, ``rig_sim``, ``estimator``, ``controller``, ``recorder``, ``bag_player``,
+``dashboard``:
 each module has ``main(args=None)`` (the console script ``ros2 run clutch_ros <name>`` runs)
-and answers ``--help`` without starting ROS. ``common`` holds the shared plumbing.
+and answers ``--help`` without starting ROS. The shared plumbing is split by what it
+is: ``parameters``, ``qos``, ``stamps``, ``diagnostics``, ``runner``.
 
 One BLAS thread per node process: importing this package sets ``OPENBLAS_NUM_THREADS`` and
 ``OMP_NUM_THREADS`` to 1 unless they are set already (a value you set is kept), before any

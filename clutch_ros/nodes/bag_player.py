@@ -36,6 +36,7 @@ import math
 import threading
 import time
 
+import rclpy
 from clutch_msgs.srv import SetPaused
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -44,14 +45,10 @@ from rosgraph_msgs.msg import Clock
 from clutch_ros.bag.diagnose import blame_file
 from clutch_ros.bag.errors import BagCorruptError
 from clutch_ros.bag.reader import BagReader
-from clutch_ros.nodes.common import (
-    HARDWARE_ID_PARAM,
-    ParamSpec,
-    declare_params,
-    reliable_qos,
-    run_node,
-    sec_to_stamp,
-)
+from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec, declare_params
+from clutch_ros.nodes.qos import reliable_qos
+from clutch_ros.nodes.runner import run_node
+from clutch_ros.nodes.stamps import sec_to_stamp
 
 NAME = "bag_player"
 PARAMS = [
@@ -143,8 +140,6 @@ class BagPlayerNode(Node):
 
     def _publish_clock(self, bag_ns: int) -> None:
         if self._clock_pub is not None:
-            from rosgraph_msgs.msg import Clock
-
             msg = Clock()
             sec_to_stamp(bag_ns * 1e-9, msg.clock)
             self._clock_pub.publish(msg)
@@ -191,8 +186,6 @@ class BagPlayerNode(Node):
                    "rate": cfg["player.rate"], "topics": self._topics, "error": self.error}
         self.get_logger().info(f"player summary: {json.dumps(summary)}")
         if cfg["player.exit_when_done"] and not self._stop.is_set():
-            import rclpy
-
             rclpy.try_shutdown()
 
     def _check(self, topic: str, bag_ns: int, data) -> None:

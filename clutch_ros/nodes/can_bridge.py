@@ -81,16 +81,11 @@ from clutch_ros.nodes.can_bridge_params import (
 )
 from clutch_ros.nodes.can_diagnostics import hardware_id, node_status
 from clutch_ros.nodes.command_sources import CommandSources
-from clutch_ros.nodes.common import (
-    HARDWARE_ID_PARAM,
-    Diagnostics,
-    LogThrottle,
-    declare_params,
-    reliable_qos,
-    run_node,
-    sensor_qos,
-)
 from clutch_ros.nodes.convert import can_frame_to_ros, rig_state_to_ros
+from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
+from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, declare_params
+from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+from clutch_ros.nodes.runner import run_node
 
 NAME = "can_bridge"
 IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning

@@ -20,7 +20,7 @@ from collections.abc import Mapping
 from clutch_ros.canbus import PumpGateConfig
 from clutch_ros.canbus.signal_map import KEYS, SignalMap
 from clutch_ros.errors import ClutchError
-from clutch_ros.nodes.common import HARDWARE_ID_PARAM, ParamSpec
+from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec
 
 __all__ = ["GATE_PARAMS", "LIVE", "PARAMS", "check_change", "gate_config", "signal_specs"]
 

@@ -44,18 +44,12 @@ from rclpy.node import Node
 from clutch_ros.config.presets import default_preset
 from clutch_ros.errors import ClutchError
 from clutch_ros.model.control import ControllerSettings, TorqueController
-from clutch_ros.nodes.common import (
-    HARDWARE_ID_PARAM,
-    Diagnostics,
-    LogThrottle,
-    ParamSpec,
-    declare_params,
-    reliable_qos,
-    run_node,
-    sensor_qos,
-)
+from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.model_params import apply_model_changes, declare_model_params
+from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec, declare_params
 from clutch_ros.nodes.peers import Input, PeerWatch
+from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+from clutch_ros.nodes.runner import run_node
 
 NAME = "controller"
 _C = ControllerSettings()  # the defaults of the trim parameters

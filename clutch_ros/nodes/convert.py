@@ -6,7 +6,7 @@ import math
 
 from clutch_msgs.msg import CanFrame, RigState
 
-from clutch_ros.nodes.common import sec_to_stamp
+from clutch_ros.nodes.stamps import sec_to_stamp
 from clutch_ros.rigstate import fill_msg
 
 __all__ = ["adaptation_to_msg", "can_frame_to_ros", "estimate_to_msg", "rig_state_to_ros"]

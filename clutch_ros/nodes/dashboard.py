@@ -19,15 +19,11 @@ import importlib
 from rclpy.node import Node
 
 from clutch_ros.dashboard import TOPICS, DashboardServer, absolute
-from clutch_ros.nodes.common import (
-    Diagnostics,
-    ParamSpec,
-    declare_params,
-    reliable_qos,
-    run_node,
-    sensor_qos,
-)
+from clutch_ros.nodes.diagnostics import Diagnostics
 from clutch_ros.nodes.loss_tracker import LossTracker
+from clutch_ros.nodes.parameters import ParamSpec, declare_params
+from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+from clutch_ros.nodes.runner import run_node
 
 NAME = "dashboard"
 PARAMS = [

@@ -16,7 +16,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 
-from clutch_ros.nodes.common import reliable_qos, sensor_qos
+from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 from clutch_ros.rig.request_profile import request_at, slip_at
 
 __all__ = ["DemoDriver"]

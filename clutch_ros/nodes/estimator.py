@@ -35,24 +35,19 @@ from clutch_ros.config.presets import default_preset
 from clutch_ros.errors import ClutchError
 from clutch_ros.model import SampleRejected
 from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimator
-from clutch_ros.nodes.common import (
-    HARDWARE_ID_PARAM,
-    Diagnostics,
-    LogThrottle,
-    ParamSpec,
-    declare_params,
-    reliable_qos,
-    run_node,
-    stamp_to_sec,
-)
 from clutch_ros.nodes.convert import adaptation_to_msg, estimate_to_msg
+from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.loss_tracker import LossTracker
 from clutch_ros.nodes.model_params import (
     apply_model_changes,
     declare_model_params,
     model_param_specs,
 )
+from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec, declare_params
 from clutch_ros.nodes.peers import Input, PeerWatch
+from clutch_ros.nodes.qos import reliable_qos
+from clutch_ros.nodes.runner import run_node
+from clutch_ros.nodes.stamps import stamp_to_sec
 from clutch_ros.offline.adapt import save_adapted_params
 
 NAME = "estimator"

@@ -11,7 +11,7 @@ from __future__ import annotations
 from clutch_ros.config.params_file import load_flat
 from clutch_ros.errors import ClutchError
 from clutch_ros.model import NAMESPACES, PARAMETER_SPECS, ClutchParams
-from clutch_ros.nodes.common import ParamSpec, declare_params
+from clutch_ros.nodes.parameters import ParamSpec, declare_params
 
 __all__ = ["model_param_specs", "declare_model_params", "validated_params",
            "apply_model_changes"]

@@ -56,16 +56,16 @@ from rclpy.signals import SignalHandlerOptions
 
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.errors import ClutchError
-from clutch_ros.nodes.common import (
+from clutch_ros.nodes.diagnostics import Diagnostics
+from clutch_ros.nodes.loss_tracker import LossTracker, format_counts
+from clutch_ros.nodes.parameters import (
     HARDWARE_ID_PARAM,
-    Diagnostics,
     ParamSpec,
     declare_params,
     format_help,
     help_requested,
-    make_executor,
 )
-from clutch_ros.nodes.loss_tracker import LossTracker, format_counts
+from clutch_ros.nodes.runner import make_executor
 
 NAME = "recorder"
 #: topic -> (ROS type "pkg/msg/Name", reliable?)

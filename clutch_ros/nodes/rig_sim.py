@@ -28,7 +28,9 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
 from clutch_ros.canbus import BusConfig, ReconnectingBus
-from clutch_ros.nodes.common import Diagnostics, ParamSpec, declare_params, run_node
+from clutch_ros.nodes.diagnostics import Diagnostics
+from clutch_ros.nodes.parameters import ParamSpec, declare_params
+from clutch_ros.nodes.runner import run_node
 from clutch_ros.rig import RigPlant, RigSimulator
 from clutch_ros.rig.can_io import RigCanPort
 from clutch_ros.rig.scenario import ScenarioPoint, scenario_from_spec

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from clutch_ros.model.fit_data import IdentificationError
 from clutch_ros.model.identification import FREE_PARAMETERS, FitOptions, FitResult, evaluate, fit
 from clutch_ros.model.params import PASSIVE_LAWS, ClutchParams
 
@@ -142,8 +143,6 @@ def score_law(law: str, result: FitResult, runs) -> LawScore:
 def fit_auto(runs, validation_runs, base: ClutchParams, *, laws: Sequence[str] = PASSIVE_LAWS,
              fixed: Sequence[str] = (), options: FitOptions | None = None) -> AutoFitResult:
     """Fit each law on ``runs``, score it on ``validation_runs`` (module docstring)."""
-    from clutch_ros.model.fit_data import IdentificationError
-
     targets = list(validation_runs) or list(runs)
     scores = []
     for law in laws:

@@ -51,7 +51,7 @@ def _live_run(bag, out, ros_env, log_dir, n_samples):
     from clutch_msgs.msg import ClutchEstimate
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from clutch_ros.nodes.common import reliable_qos
+    from clutch_ros.nodes.qos import reliable_qos
 
     estimator = _node("estimator", {"use_sim_time": True}, ros_env, log_dir,
                       ("--params-file", str(PRESET)))  # fmt: skip

@@ -134,7 +134,7 @@ def test_bad_command_line_is_one_line_and_exit_2(tmp_path):
 def test_clutch_up_sim_brings_up_the_chain_and_stops_on_sigterm(tmp_path, ros_env):
     from clutch_msgs.msg import ClutchEstimate, RigState
 
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 
     group, port = private_group()
     cmd = [sys.executable, "-m", "clutch_ros.cli", "up", "sim.launch.xml", f"channel:={group}",

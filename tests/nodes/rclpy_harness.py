@@ -14,7 +14,7 @@ def rig_state(t: float, pressure: float = 20e5):
     """Return a valid RigState stamped ``t`` [s]: ``pressure`` [Pa], 40 °C, 10 rpm, 500 N m."""
     from clutch_msgs.msg import RigState
 
-    from clutch_ros.nodes.common import sec_to_stamp
+    from clutch_ros.nodes.stamps import sec_to_stamp
 
     msg = RigState()
     sec_to_stamp(t, msg.header.stamp)

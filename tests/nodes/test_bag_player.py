@@ -89,7 +89,7 @@ def test_use_sim_time_estimator_follows_the_bag_clock(bag, ros_env, tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
     from rosgraph_msgs.msg import Clock
 
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 
     path, run = bag
     args = ["--ros-args", "--params-file", str(PRESET), "-p", "use_sim_time:=true"]
@@ -143,7 +143,7 @@ def test_rate_and_topic_selection(bag, ros_env, tmp_path):
     from clutch_msgs.msg import RigState, TorqueRequest
     from rosgraph_msgs.msg import Clock
 
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 
     path, run = bag
     with Harness() as h:
@@ -175,7 +175,7 @@ def test_rate_and_topic_selection(bag, ros_env, tmp_path):
 def test_loop_repeats_the_bag_until_stopped(bag, ros_env, tmp_path):
     from clutch_msgs.msg import TorqueRequest
 
-    from clutch_ros.nodes.common import reliable_qos
+    from clutch_ros.nodes.qos import reliable_qos
 
     path, _ = bag
     with Harness() as h:

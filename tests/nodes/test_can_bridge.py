@@ -121,7 +121,7 @@ def test_rig_state_pump_requests_watchdog_and_limits(tmp_path):
     from clutch_msgs.msg import PressureCommand, RigState
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 
     group, port = private_group()
     logs = tmp_path / "logs"
@@ -228,7 +228,7 @@ def test_fuzz_through_the_node_and_quiet_idle_bus(tmp_path):
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
     from clutch_ros.nodes.can_bridge import IDLE_TIMEOUT
-    from clutch_ros.nodes.common import reliable_qos
+    from clutch_ros.nodes.qos import reliable_qos
 
     group, port = private_group()
     frames, exp = generate(int.from_bytes(os.urandom(4), "little"), 8000, DB)

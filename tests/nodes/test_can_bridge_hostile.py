@@ -45,7 +45,7 @@ def test_one_malformed_datagram_per_second_keeps_the_link_and_rig_state(tmp_path
     from clutch_msgs.msg import RigState
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from clutch_ros.nodes.common import sensor_qos
+    from clutch_ros.nodes.qos import sensor_qos
 
     group, port = private_group()
     logs = tmp_path / "logs"
@@ -91,7 +91,7 @@ def test_10_khz_commands_give_at_most_two_frames_per_period(tmp_path):
     from clutch_msgs.msg import PressureCommand
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from clutch_ros.nodes.common import reliable_qos
+    from clutch_ros.nodes.qos import reliable_qos
 
     group, port = private_group()
     bridge = _node("can_bridge", {**bus_params(group, port), "pump.watchdog_timeout": WATCHDOG,
@@ -147,7 +147,7 @@ def test_foreign_stale_future_commands_refused_and_zero_on_sigterm(tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.node import Node
 
-    from clutch_ros.nodes.common import reliable_qos
+    from clutch_ros.nodes.qos import reliable_qos
 
     group, port = private_group()
     bridge = _node("can_bridge", {**bus_params(group, port), "pump.watchdog_timeout": WATCHDOG,

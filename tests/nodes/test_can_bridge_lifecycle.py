@@ -94,7 +94,7 @@ def test_live_parameters_qos_and_foreign_signal_map(tmp_path):
     from rcl_interfaces.srv import GetParameters, SetParameters
     from rclpy.qos import QoSProfile
 
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 
     db = RigDatabase(FOREIGN_DBC, strict_units=False)
     codec = foreign_map().resolve(db).pump
@@ -208,7 +208,7 @@ def test_lifecycle_configure_activate_deactivate(tmp_path):
     from lifecycle_msgs.srv import ChangeState, GetState
 
     from clutch_ros.canbus import PumpRequestCodec
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 
     db, codec = RigDatabase(), PumpRequestCodec()
     group, port = private_group()

@@ -25,7 +25,7 @@ def test_estimator_death_zeroes_pressure_and_restart_resumes(tmp_path):
 
     from clutch_msgs.msg import PressureCommand, TorqueRequest
 
-    from clutch_ros.nodes.common import reliable_qos
+    from clutch_ros.nodes.qos import reliable_qos
 
     env = isolated_ros_env(int(os.environ["ROS_DOMAIN_ID"]))
     group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"

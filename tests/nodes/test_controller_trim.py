@@ -44,7 +44,7 @@ def test_trim_share_is_published_and_released_without_measurement(controller):
     from clutch_ros.config.params_file import load_params
     from clutch_ros.model.adaptation import scaled_params
     from clutch_ros.model.inverse import capacity_scalar, pressure_for_torque
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 
     params = scaled_params(load_params(PRESET), SCALE)
     state = {"measured": True}

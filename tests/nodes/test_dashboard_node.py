@@ -63,7 +63,7 @@ def test_live_topics_forwarded_as_ros_bytes(dashboard):
     from clutch_msgs.msg import PressureCommand, RigState
     from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 
     async def scenario(h):
         client = FoxgloveClient(dashboard)

@@ -56,7 +56,7 @@ def _samples():
 def _msg(row):
     from clutch_msgs.msg import RigState
 
-    from clutch_ros.nodes.common import sec_to_stamp
+    from clutch_ros.nodes.stamps import sec_to_stamp
 
     msg = RigState()
     sec_to_stamp(row[0], msg.header.stamp)
@@ -89,7 +89,8 @@ def test_adapts_freezes_with_a_diagnostic_and_saves(estimator, tmp_path):
 
     from clutch_ros.config.params_file import load_params
     from clutch_ros.model.adaptation import AdaptiveEstimator
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos, stamp_to_sec
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+    from clutch_ros.nodes.stamps import stamp_to_sec
 
     rows = _samples()
     with Harness() as h:

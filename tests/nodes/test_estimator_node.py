@@ -38,7 +38,8 @@ def test_estimates_per_sample_and_bad_samples_skipped(estimator):
     from clutch_msgs.msg import ClutchEstimate, RigState
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos, stamp_to_sec
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+    from clutch_ros.nodes.stamps import stamp_to_sec
 
     with Harness() as h:
         estimates = h.collect(ClutchEstimate, "clutch_estimate", reliable_qos())
@@ -92,7 +93,7 @@ def test_events_executor_choice_is_warned_about(ros_env, tmp_path):
     import time
 
     from clutch_ros.cli.processes import NodeProcess
-    from clutch_ros.nodes.common import EVENTS_WARNING
+    from clutch_ros.nodes.runner import EVENTS_WARNING
 
     node = NodeProcess("estimator", ["--executor", "events", "--ros-args", "--params-file",
                                      str(PRESET)], ros_env, tmp_path)  # fmt: skip

@@ -59,7 +59,7 @@ def _connect(h, *, timeout=30.0):
     from clutch_msgs.msg import ClutchEstimate, RigState
     from rclpy.parameter_client import AsyncParameterClient
 
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 
     estimates = h.collect(ClutchEstimate, "clutch_estimate", reliable_qos())
     pub = h.node.create_publisher(RigState, "rig_state", sensor_qos())
@@ -109,7 +109,7 @@ def _model_reason(flat: dict, key: str, value) -> str:
 def test_runtime_change_keeps_the_pack_state(estimator):
     from clutch_ros.config.params_file import load_params
     from clutch_ros.model import ClutchEstimator
-    from clutch_ros.nodes.common import stamp_to_sec
+    from clutch_ros.nodes.stamps import stamp_to_sec
 
     params = load_params(PRESET)
     mu_old = params.friction.mu_ref
@@ -220,7 +220,7 @@ def test_sim_time_diagnostics_follow_clock(ros_env):
     from diagnostic_msgs.msg import DiagnosticArray
     from rosgraph_msgs.msg import Clock
 
-    from clutch_ros.nodes.common import sec_to_stamp, stamp_to_sec
+    from clutch_ros.nodes.stamps import sec_to_stamp, stamp_to_sec
 
     # a generous max_sample_age: the test's clock runs ~5x faster than the wall clock, and
     # the node may lag a little behind it on a loaded machine

@@ -55,7 +55,8 @@ def test_parameters_apply_live_and_peers_are_named(ros_env, tmp_path):
     from rclpy.parameter_client import AsyncParameterClient
 
     from clutch_ros.cli.processes import NodeProcess
-    from clutch_ros.nodes.common import reliable_qos, sensor_qos, stamp_to_sec
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+    from clutch_ros.nodes.stamps import stamp_to_sec
 
     hw = ["-p", "diagnostics.hardware_id:=simulated rig"]
     procs = [NodeProcess("estimator", ["--ros-args", "--params-file", PRESET, *hw], ros_env,

@@ -1,0 +1,106 @@
+"""How a node process runs: ``--help`` without ROS, the executor, spin, clean shutdown.
+
+Every node's ``main(args=None)`` calls :func:`run_node`, which answers ``--help`` without
+starting ROS (listing every parameter with unit, range and default), spins the node and shuts
+down cleanly on SIGINT / SIGTERM.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Sequence
+
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+from clutch_ros.errors import ClutchError
+from clutch_ros.nodes.parameters import ParamSpec, format_help, help_requested
+
+__all__ = ["DEFAULT_EXECUTOR", "EVENTS_WARNING", "make_executor", "run_node"]
+
+
+#: Executor the nodes spin by default. SingleThreadedExecutor: measured by
+#: ``python -m benchmarks.estimator_node`` against rclpy.experimental.EventsExecutor (figures in
+#: the README); ``--executor events`` before ``--ros-args`` selects the other one.
+DEFAULT_EXECUTOR = "single"
+
+
+#: Logged when ``--executor events`` is chosen: what the EventsExecutor did here.
+EVENTS_WARNING = ("--executor events is experimental: with the rclpy 9.1.2 wheels from PyPI "
+                  "it ran no subscription or timer callbacks after the first spin and ignored "
+                  "SIGINT; use the default (single) unless your rclpy build was checked with "
+                  "'python -m benchmarks.estimator_node'")
+
+
+def make_executor(kind: str = DEFAULT_EXECUTOR):
+    """Return a new ``single`` (SingleThreadedExecutor) or ``events`` (EventsExecutor)."""
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor  # experimental: loaded only when chosen
+
+        return EventsExecutor()
+    if kind == "single":
+        return SingleThreadedExecutor()
+    raise ValueError(f"unknown executor {kind!r} (single or events)")
+
+
+def _executor_option(argv: list[str]) -> tuple[str, list[str]]:
+    """Take ``--executor KIND`` (before ``--ros-args``) out of ``argv``."""
+    kind = DEFAULT_EXECUTOR
+    out: list[str] = []
+    it = iter(argv)
+    for arg in it:
+        if arg == "--ros-args":
+            out.append(arg)
+            out.extend(it)
+            break
+        if arg == "--executor":
+            kind = next(it, DEFAULT_EXECUTOR)
+        elif arg.startswith("--executor="):
+            kind = arg.split("=", 1)[1]
+        else:
+            out.append(arg)
+    return kind, out
+
+
+def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[[], object],
+             args: Sequence[str] | None = None) -> int:
+    """Answer --help, or init rclpy, build the node with ``factory`` and spin until shutdown.
+
+    Bad settings (a ClutchError or rclpy ParameterException while building the node) print
+    one line ``<name>: error: ...`` and return 2, never a traceback.
+    """
+    argv = list(sys.argv[1:] if args is None else args)
+    if help_requested(argv):
+        sys.stdout.write(format_help(name, doc, specs))
+        return 0
+    executor_kind, argv = _executor_option(argv)
+
+
+    # rclpy's own handlers (SignalHandlerOptions.ALL, the default) turn SIGINT and SIGTERM
+    # into a clean shutdown even while the executor waits in C; a Python-level handler would
+    # only run when some callback wakes the executor.
+    rclpy.init(args=[sys.argv[0], *argv])
+    node = None
+    try:
+        node = factory()
+        executor = make_executor(executor_kind)
+        if executor_kind == "events":
+            node.get_logger().warning(EVENTS_WARNING)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ClutchError, ParameterException, ValueError) as err:
+        if node is not None:  # an error after start-up is a bug: show it
+            raise
+        sys.stderr.write(f"{name}: error: {err}\n")
+        return 2
+    finally:
+        if node is not None:
+            close = getattr(node, "close", None)
+            if close is not None:
+                close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
