@@ -246,13 +246,14 @@ def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_spee
                    measured_torque=None, *, max_gap_s: float = 1.0,
                    accuracy_min_torque: float = 1.0, overshoot_limit: float = 1.1,
                    undershoot_limit: float = 0.9, on_reject: str = "raise",
-                   model: PackModel | None = None) -> EstimateBatch:
+                   model: PackModel | None = None, engine: str = "auto") -> EstimateBatch:
     """Estimate a whole series; identical to looping ``ClutchEstimator.update()``.
 
     Inputs broadcast to ``t``'s shape (1-D stamps [s]); ``measured_torque`` None means no
     measurement. ``on_reject``: ``"raise"`` raises the first sample's SampleRejected, like an
     update loop that does not catch; ``"skip"`` leaves NaN rows (``accepted`` False), like one
-    that catches and continues.
+    that catches and continues. ``engine``: the model loop, ``"auto"`` | ``"kernel"`` |
+    ``"numpy"`` (see :func:`~clutch_ros.model.simulate.simulate`).
     """
     if on_reject not in ("raise", "skip"):
         raise InputError(f"on_reject must be 'raise' or 'skip', got {on_reject!r}")
@@ -289,7 +290,8 @@ def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_spee
         for a, b in zip(starts[:-1].tolist(), starts[1:].tolist()):
             rows = idx[a:b]
             omega_f = lowpass_series(t[rows], omega[rows], params.slip.filter_time_constant)
-            sim = simulate(params, t[rows], p[rows], omega_f, temp[rows], model=model)
+            sim = simulate(params, t[rows], p[rows], omega_f, temp[rows], model=model,
+                           engine=engine)
             reinit[rows[0]] = True
             out["modelled_torque"][rows] = sim.torque
             out["reference_torque"][rows] = sim.reference_torque

@@ -1,13 +1,14 @@
 """Compiled per-sample loop of the pack model (numba), used by :func:`simulate` when available.
 
-:func:`~clutch_ros.model.simulate.simulate` (and so replay, fit and the batch estimator) runs
-its per-sample loop here when numba can be imported; the numpy path
+:func:`~clutch_ros.model.simulate.simulate` (and so replay, fit and
+:func:`~clutch_ros.model.estimator.estimate_batch`) runs its per-sample loop here with
+``engine="kernel"`` or ``"auto"`` (the default); the numpy path
 (:meth:`~clutch_ros.model.pack.PackModel._advance`, one Python call per sample) stays the
-reference and the fallback. The compiled loop performs the same steps in the same order per
-sample (thesis Eqs. 11-27, :meth:`PackModel._advance`): μ at the start of the step from the
-pack's own state (normal-force pressure, film, temperature), the spline law's held forces, the
-exact ZOH ``x⁺ = M w`` (M = [Φ | Γ] of the step's dt, built by the model's discretisation
-cache), then the oil film and thermal states with the inputs held. Laws:
+reference (``engine="numpy"``) and the fallback. The compiled loop performs the same steps in
+the same order per sample (thesis Eqs. 11-27, :meth:`PackModel._advance`): μ at the start of
+the step from the pack's own state (normal-force pressure, film, temperature), the spline
+law's held forces, the exact ZOH ``x⁺ = M w`` (M = [Φ | Γ] of the step's dt, built by the
+model's discretisation cache), then the oil film and thermal states with the inputs held. Laws:
 
 - ``none``, ``ff_t_printed``: linear; T enters the work vector;
 - ``ff_v_printed``: ``F_fn = κ T w_n`` held;
@@ -15,18 +16,21 @@ cache), then the oil film and thermal states with the inputs held. Laws:
   onto the law's box (see :mod:`clutch_ros.model.spline_passive`), found by the same
   warm-started active-set iteration with projected Gauss-Seidel as fallback. The solution of
   the box problem is unique, so the compiled and the numpy solver agree to rounding (the
-  products are summed in a different order: results equal the numpy path to ~1e-12
-  relative; tests/model/test_kernel.py states the tolerance it checks).
+  products are summed in a different order; tests/model/test_kernel.py states the tolerances
+  it checks).
 
 Compiled code is cached on disk (``cache=True``) in ``NUMBA_CACHE_DIR`` (default: a
 ``numba`` folder in the user cache dir, ``$XDG_CACHE_HOME`` or ``~/.cache``, under
-``clutch_ros``), so only the first call after install pays the ~2 s compilation.
-``CLUTCH_KERNEL=0`` switches the kernel off (numpy reference path).
+``clutch_ros``), so only the first call after install pays the few seconds of compilation.
+
+Fallback, never silent: with ``engine="auto"``, if numba cannot be imported, compilation
+fails, or ``CLUTCH_KERNEL=0`` is set, the numpy path runs, the reason is logged (a warning,
+once per process; info for the explicit switch) and kept in :func:`unavailable_reason`.
+``engine="kernel"`` raises :class:`KernelUnavailableError` instead of falling back.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import os
@@ -34,9 +38,15 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["available", "numpy_only", "run_loop", "LAW_CODES"]
+from clutch_ros.model.errors import InputError, ModelError
+
+__all__ = ["ENGINES", "KernelUnavailableError", "LAW_CODES", "available", "check_engine",
+           "run_loop", "unavailable_reason"]
 
 _log = logging.getLogger(__name__)
+
+#: accepted values of simulate()'s ``engine`` argument
+ENGINES = ("auto", "kernel", "numpy")
 
 _NONE, _LINEAR, _VISCOUS, _BOX = 0, 1, 2, 3
 _COULOMB, _FF_T, _FF_V = 0, 1, 2
@@ -46,7 +56,12 @@ LAW_CODES = {"none": (_NONE, 0), "ff_t_printed": (_LINEAR, 0), "ff_v_printed": (
 _MAX_ACTIVE_SET_ITERATIONS = 64
 _MAX_GAUSS_SEIDEL_SWEEPS = 10000
 
-_state: dict = {"loop": None, "reason": None, "off": False}
+#: loop: the compiled loop once numba is imported; reason: why the kernel cannot be used
+_state: dict = {"loop": None, "reason": None, "numba_error": None}
+
+
+class KernelUnavailableError(ModelError):
+    """``engine="kernel"`` was asked for but the compiled kernel cannot run (says why)."""
 
 
 def _cache_dir() -> str:
@@ -54,38 +69,45 @@ def _cache_dir() -> str:
     return str(Path(base) / "clutch_ros" / "numba")
 
 
+def check_engine(engine: str) -> str:
+    """Return ``engine`` if it is one of :data:`ENGINES`, else raise InputError."""
+    if engine not in ENGINES:
+        raise InputError(f"engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    return engine
+
+
 def available() -> bool:
     """Return True when the compiled loop can be used (numba imported, not switched off)."""
-    return not _state["off"] and _compiled() is not None
+    return _compiled() is not None
 
 
-@contextlib.contextmanager
-def numpy_only():
-    """Run the numpy reference path inside the ``with`` block (tests, comparisons)."""
-    before = _state["off"]
-    _state["off"] = True
-    try:
-        yield
-    finally:
-        _state["off"] = before
+def unavailable_reason() -> str | None:
+    """Return why the kernel cannot be used (None while it can, or before the first try)."""
+    return _state["reason"]
+
+
+def _disable(reason: str, level: int = logging.WARNING) -> None:
+    _state["loop"] = None
+    _state["reason"] = reason
+    _log.log(level, "model kernel: %s; numpy path", reason)
 
 
 def _compiled():
     if _state["loop"] is not None or _state["reason"] is not None:
         return _state["loop"]
     if os.environ.get("CLUTCH_KERNEL", "1") == "0":
-        _state["reason"] = "switched off by CLUTCH_KERNEL=0"
-        _log.info("model kernel: %s; numpy path", _state["reason"])
+        _disable("switched off by CLUTCH_KERNEL=0", logging.INFO)
         return None
     os.environ.setdefault("NUMBA_CACHE_DIR", _cache_dir())
     try:
-        # numba (LLVM) takes ~0.3-0.5 s to import: loaded on the first simulate(), not when
-        # the model is imported, so start-up of commands that never simulate stays fast
+        # numba (LLVM) is slow to import (~0.3-0.5 s): loaded on the first simulate(), so
+        # commands that never simulate start fast
         import numba
+        from numba.core.errors import NumbaError
     except Exception as err:  # noqa: BLE001 - any import failure means: use numpy
-        _state["reason"] = f"numba cannot be imported ({type(err).__name__}: {err})"
-        _log.warning("model kernel: %s; numpy path", _state["reason"])
+        _disable(f"numba cannot be imported ({type(err).__name__}: {err})")
         return None
+    _state["numba_error"] = NumbaError
     jit = numba.njit(cache=True, nogil=True)
     g = globals()
     for name in ("_mu", "_film_step", "_thermal_step", "_box_forces", "_violations",
@@ -133,7 +155,7 @@ def _thermal_step(th, temperature, dt, power):
 
 
 def _box_forces(g, f_stick, lo, hi, stuck, sigma, f):
-    """Forces of one active set: sliding at hi (σ > 0) or lo, stuck ones solved."""
+    """Write the forces of one active set: sliding at hi (σ > 0) or lo, stuck ones solved."""
     n = f.size
     n_st = 0
     for i in range(n):
@@ -293,7 +315,7 @@ def _box_apply(variant, work, head, s0, f0, nlam, torque, scale, gain, kmat, nma
 def _loop(ms, inv, dts, press, omega, temp, sign, work, idx, consts, fr, th, law, variant,
           kmats, nmats, gmats, hmats, stuck, sigma, states, forces, temps, films, torque_out,
           record):
-    """Steps 1..n-1 of simulate() (PackModel._advance per sample); returns (film, temp)."""
+    """Run steps 1..n-1 of simulate() (PackModel._advance per sample); return (film, temp)."""
     nx, i_front, i_force, i_torque, s0, f0, nlam, head = (idx[0], idx[1], idx[2], idx[3],
                                                           idx[4], idx[5], idx[6], idx[7])
     area, c2k, k_na, gain, coef, film_on = (consts[0], consts[1], consts[2], consts[3],
@@ -356,18 +378,27 @@ def _box_matrices(law_name, table, nlam, head):
 
 
 def run_loop(model, table, inverse, dts, press, omega, temp, sign, states, forces, temps,
-             films):
+             films, engine: str = "auto"):
     """Run :func:`~clutch_ros.model.simulate.simulate`'s steps 1..n-1 compiled.
 
     Same arguments and effects as the numpy loop there (fills ``states[1:]``, ``forces[1:]``
     for laws that record them, ``temps[1:]``, ``films[1:]``; leaves ``model`` as the step
-    loop does) and returns the law's torque per step [N m]; None when the kernel is not
-    available or does not know the law (the caller then runs the numpy loop).
+    loop does) and returns the law's torque per step [N m]. Returns None when the caller must
+    run the numpy loop: ``engine="numpy"``, or ``"auto"`` with the kernel unavailable (the
+    reason is logged, see the module docstring). ``engine="kernel"`` raises
+    :class:`KernelUnavailableError` instead.
     """
-    loop = None if _state["off"] else _compiled()
+    if check_engine(engine) == "numpy":
+        return None
     law = model.law
     codes = LAW_CODES.get(law.name)
+    loop = _compiled()
     if loop is None or codes is None:
+        why = _state["reason"] if loop is None else f"no compiled code for law {law.name!r}"
+        if engine == "kernel":
+            raise KernelUnavailableError(f"engine='kernel': {why}")
+        if codes is None:
+            _log.warning("model kernel: %s; numpy path", why)
         return None
     lay = model.layout
     fr_p, th_p = model._fr, model.params.thermal
@@ -387,11 +418,19 @@ def run_loop(model, table, inverse, dts, press, omega, temp, sign, states, force
     stuck = np.ones(lay.lamella_count, dtype=np.bool_) if warm is None else warm[0].copy()
     sigma = np.ones(lay.lamella_count) if warm is None else warm[1].astype(float)
     torque = np.empty(dts.size)
-    film, cur_temp = loop(ms, np.ascontiguousarray(inverse, dtype=np.int64),
-                          np.ascontiguousarray(dts, dtype=float), press, omega, temp, sign,
-                          model._work, idx, consts, fr, th, codes[0], codes[1], kmats, nmats,
-                          gmats, hmats, stuck, sigma, states, forces, temps, films, torque,
-                          law.records_forces)
+    work_before = model._work.copy()
+    try:
+        film, cur_temp = loop(ms, np.ascontiguousarray(inverse, dtype=np.int64),
+                              np.ascontiguousarray(dts, dtype=float), press, omega, temp, sign,
+                              model._work, idx, consts, fr, th, codes[0], codes[1], kmats,
+                              nmats, gmats, hmats, stuck, sigma, states, forces, temps, films,
+                              torque, law.records_forces)
+    except _state["numba_error"] as err:  # compilation (typing/lowering) failed: nothing ran
+        np.copyto(model._work, work_before)
+        _disable(f"compilation failed ({type(err).__name__}: {str(err).splitlines()[0]})")
+        if engine == "kernel":
+            raise KernelUnavailableError(f"engine='kernel': {_state['reason']}") from err
+        return None
     model._film, model._temp = float(film), float(cur_temp)
     if warm is not None:
         law.set_warm_state((stuck, sigma))

@@ -1,8 +1,9 @@
 """The compiled model loop (numba) equals the numpy reference path on the golden sequences.
 
 Every law the kernel knows runs every test sequence of the thesis (Tables 3-4, 10 and 30 rpm,
-:mod:`clutch_ros.model.sequences`) through :func:`simulate` twice: compiled and with
-:func:`kernel.numpy_only` (the per-sample ``PackModel._advance`` loop), with a measured
+:mod:`clutch_ros.model.sequences`) and the PBD run released while slipping through
+:func:`simulate` twice: ``engine="kernel"`` and ``engine="numpy"`` (the per-sample
+``PackModel._advance`` loop), with a measured
 temperature ramp and without one (NaN: the thermal state), on the estimator preset and on the
 rig truth preset (oil film on). Tolerances: rtol 1e-9 on torque, pressures, μ, temperature and
 film (both paths do the same float operations; the matrix-vector products are summed in a
@@ -15,6 +16,7 @@ why in the log.
 """
 
 import math
+import os
 import subprocess
 import sys
 
@@ -24,25 +26,27 @@ import pytest
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model import PackModel, kernel, make_sequence, simulate
+from clutch_ros.model.errors import InputError
+from clutch_ros.model.estimator import estimate_batch
 from clutch_ros.model.sequences import SEQUENCE_NAMES
 
 LAWS = sorted(kernel.LAW_CODES)
 BOX_LAWS = {"coulomb", "ff_t", "ff_v"}
-SEQUENCES = [(name, rpm) for name in SEQUENCE_NAMES for rpm in (10.0, 30.0)]
+SEQUENCES = [(name, rpm) for name in (*SEQUENCE_NAMES, "pbd_release") for rpm in (10.0, 30.0)]
 
 
 def _both(params, seq, temperature):
     args = (params, seq.t, seq.actuating_pressure, seq.slip_speed, temperature)
     m_kernel, m_numpy = PackModel(params), PackModel(params)
-    fast = simulate(*args, model=m_kernel)
-    with kernel.numpy_only():
-        ref = simulate(*args, model=m_numpy)
+    fast = simulate(*args, model=m_kernel, engine="kernel")
+    ref = simulate(*args, model=m_numpy, engine="numpy")
+    assert (fast.engine, ref.engine) == ("kernel", "numpy")
     return fast, ref, m_kernel, m_numpy
 
 
 def test_kernel_is_available():
-    """numba is pinned: the suite must exercise the compiled path, not skip it."""
-    assert kernel.available(), kernel._state["reason"]
+    """Numba is pinned: the suite must exercise the compiled path, not skip it."""
+    assert kernel.available(), kernel.unavailable_reason()
 
 
 @pytest.mark.parametrize("preset", ["flexiforce_8", "rig_truth"])
@@ -84,6 +88,26 @@ def test_a_changed_sample_changes_the_compiled_result():
     assert np.abs(a.torque - b.torque).max() > 1e-3
 
 
+def test_estimate_batch_uses_the_kernel_and_equals_numpy():
+    """The batch estimator (replay, golden) passes the engine through; same tolerances."""
+    params = load_params(preset_path("flexiforce_8")).with_law("coulomb")
+    seq = make_sequence("pbd_release", 10.0)
+    args = (params, seq.t, seq.actuating_pressure, seq.lamella_temperature, seq.slip_speed)
+    fast = estimate_batch(*args, engine="kernel")
+    ref = estimate_batch(*args, engine="numpy")
+    scale = float(np.abs(ref.modelled_torque).max())
+    # rtol 1e-9 as above; atol 1e-12 of the run's largest torque for the zero samples
+    np.testing.assert_allclose(fast.modelled_torque, ref.modelled_torque, rtol=1e-9,
+                               atol=1e-12 * scale)
+
+
+def test_an_unknown_engine_is_refused():
+    seq = make_sequence("step", 10.0)
+    with pytest.raises(InputError, match="engine must be one of"):
+        simulate(load_params(preset_path("flexiforce_8")), seq.t, seq.actuating_pressure,
+                 seq.slip_speed, 60.0, engine="cuda")
+
+
 def test_without_numba_the_numpy_path_runs_and_says_why():
     code = (
         "import importlib.abc, logging, sys\n"
@@ -99,10 +123,53 @@ def test_without_numba_the_numpy_path_runs_and_says_why():
         "seq = make_sequence('step', 10.0)\n"
         "r = simulate(load_params(preset_path('flexiforce_8')), seq.t, seq.actuating_pressure,"
         " seq.slip_speed, 60.0)\n"
-        "print(kernel.available(), float(r.torque[-1]))\n")
+        "print(kernel.available(), r.engine, float(r.torque[-1]))\n"
+        "try:\n"
+        "    simulate(load_params(preset_path('flexiforce_8')), seq.t, seq.actuating_pressure,"
+        " seq.slip_speed, 60.0, engine='kernel')\n"
+        "except kernel.KernelUnavailableError as err:\n"
+        "    print('refused:', err)\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
-    available, torque = done.stdout.split()
-    assert available == "False" and math.isfinite(float(torque))
+    first, refused = done.stdout.splitlines()
+    available, engine, torque = first.split()
+    assert available == "False" and engine == "numpy" and math.isfinite(float(torque))
+    # engine="kernel" does not fall back: it says why it cannot run
+    assert refused.startswith("refused: engine='kernel': numba cannot be imported")
     assert "numba cannot be imported" in done.stderr and "numpy path" in done.stderr
+
+
+def test_a_failed_compilation_falls_back_to_numpy_and_says_why(tmp_path):
+    """A kernel that numba cannot type: auto runs numpy (logged), kernel refuses."""
+    (tmp_path / "broken.py").write_text(
+        "def film_step(fr, film, dt, pressure, slip_speed):\n"
+        "    return 'not a number' + film\n")
+    code = (
+        "import logging, sys\n"
+        f"sys.path.insert(0, {str(tmp_path)!r})\n"
+        "logging.basicConfig(level=logging.INFO)\n"
+        "import broken\n"
+        "from clutch_ros.config.params_file import load_params\n"
+        "from clutch_ros.config.presets import preset_path\n"
+        "from clutch_ros.model import kernel, make_sequence, simulate\n"
+        "kernel._film_step = broken.film_step\n"
+        "seq = make_sequence('step', 10.0)\n"
+        "params = load_params(preset_path('rig_truth'))\n"
+        "r = simulate(params, seq.t, seq.actuating_pressure, seq.slip_speed, 60.0)\n"
+        "ref = simulate(params, seq.t, seq.actuating_pressure, seq.slip_speed, 60.0,"
+        " engine='numpy')\n"
+        "print(kernel.available(), r.engine, bool((r.torque == ref.torque).all()))\n"
+        "try:\n"
+        "    simulate(params, seq.t, seq.actuating_pressure, seq.slip_speed, 60.0,"
+        " engine='kernel')\n"
+        "except kernel.KernelUnavailableError as err:\n"
+        "    print('refused:', err)\n")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    first, refused = done.stdout.splitlines()
+    assert first == "False numpy True"
+    assert refused.startswith("refused: engine='kernel': compilation failed (TypingError")
+    assert "compilation failed" in done.stderr and "numpy path" in done.stderr
