@@ -101,6 +101,20 @@ def test_estimate_batch_uses_the_kernel_and_equals_numpy():
                                atol=1e-12 * scale)
 
 
+def test_numba_is_imported_lazily():
+    """Importing the model (every CLI start-up) does not load numba; the first simulate does."""
+    code = ("import sys\n"
+            "import clutch_ros.model.simulate, clutch_ros.model.estimator\n"
+            "print('numba' in sys.modules)\n"
+            "from clutch_ros.model import kernel\n"
+            "kernel.available()\n"
+            "print('numba' in sys.modules)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["False", "True"]
+
+
 def test_an_unknown_engine_is_refused():
     seq = make_sequence("step", 10.0)
     with pytest.raises(InputError, match="engine must be one of"):
