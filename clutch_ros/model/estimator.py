@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clutch_ros.model import kernel
 from clutch_ros.model.errors import (
     DuplicateSample,
     InputError,
@@ -44,7 +45,7 @@ from clutch_ros.model.errors import (
 )
 from clutch_ros.model.pack import PackModel
 from clutch_ros.model.simulate import simulate
-from clutch_ros.model.slip import SlipFilter, lowpass_series
+from clutch_ros.model.slip import SlipFilter
 
 __all__ = ["ClutchEstimator", "Estimate", "EstimateBatch", "estimate_batch"]
 
@@ -289,7 +290,8 @@ def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_spee
         model = model if model is not None else PackModel(params)
         for a, b in zip(starts[:-1].tolist(), starts[1:].tolist()):
             rows = idx[a:b]
-            omega_f = lowpass_series(t[rows], omega[rows], params.slip.filter_time_constant)
+            omega_f = kernel.lowpass_series(t[rows], omega[rows],
+                                            params.slip.filter_time_constant, engine)
             sim = simulate(params, t[rows], p[rows], omega_f, temp[rows], model=model,
                            engine=engine)
             reinit[rows[0]] = True

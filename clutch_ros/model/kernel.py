@@ -39,9 +39,10 @@ from pathlib import Path
 import numpy as np
 
 from clutch_ros.model.errors import InputError, ModelError
+from clutch_ros.model.slip import lowpass_series as _lowpass_numpy
 
 __all__ = ["ENGINES", "KernelUnavailableError", "LAW_CODES", "available", "check_engine",
-           "run_loop", "unavailable_reason"]
+           "lowpass_series", "run_loop", "unavailable_reason"]
 
 _log = logging.getLogger(__name__)
 
@@ -110,6 +111,7 @@ def _compiled():
     _state["numba_error"] = NumbaError
     jit = numba.njit(cache=True, nogil=True)
     g = globals()
+    g["_lowpass"] = jit(g["_lowpass"])
     for name in ("_mu", "_film_step", "_thermal_step", "_box_forces", "_violations",
                  "_gauss_seidel", "_box_solve", "_box_apply", "_loop"):
         func = g[name]  # helpers first: later functions call the compiled ones
@@ -366,7 +368,41 @@ def _loop(ms, inv, dts, press, omega, temp, sign, work, idx, consts, fr, th, law
     return film, cur_temp
 
 
+def _lowpass(dts, u, tau, out):
+    """:func:`clutch_ros.model.slip.lowpass_series`'s loop (same float operations)."""
+    y = u[0]
+    out[0] = y
+    for k in range(1, u.size):
+        y = y + (-math.expm1(-dts[k - 1] / tau)) * (u[k] - y)
+        out[k] = y
+
+
 # -- the Python side -------------------------------------------------------------------------
+def lowpass_series(t, u, time_constant: float, engine: str = "auto") -> np.ndarray:
+    """Slip-speed low pass over a series, compiled (:func:`clutch_ros.model.slip.lowpass_series`).
+
+    Same result as the numpy reference (to the last bit or two of ``expm1``); the engine
+    chooses as for :func:`run_loop`.
+    """
+    tau = float(time_constant)
+    u = np.asarray(u, dtype=float)
+    if check_engine(engine) == "numpy" or u.size == 0 or tau <= 0.0:
+        return _lowpass_numpy(t, u, time_constant)
+    if _compiled() is None:
+        if engine == "kernel":
+            raise KernelUnavailableError(f"engine='kernel': {_state['reason']}")
+        return _lowpass_numpy(t, u, time_constant)
+    out = np.empty(u.size)
+    try:
+        _lowpass(np.diff(np.asarray(t, dtype=float)), np.ascontiguousarray(u), tau, out)
+    except _state["numba_error"] as err:  # compilation failed: nothing ran
+        _disable(f"compilation failed ({type(err).__name__}: {str(err).splitlines()[0]})")
+        if engine == "kernel":
+            raise KernelUnavailableError(f"engine='kernel': {_state['reason']}") from err
+        return _lowpass_numpy(t, u, time_constant)
+    return out
+
+
 def _box_matrices(law_name, table, nlam, head):
     prefix = "coulomb" if law_name == "coulomb" else "passive"
     if law_name not in ("coulomb", "ff_t", "ff_v"):

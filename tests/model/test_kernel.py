@@ -101,6 +101,17 @@ def test_estimate_batch_uses_the_kernel_and_equals_numpy():
                                atol=1e-12 * scale)
 
 
+def test_compiled_slip_lowpass_equals_numpy():
+    """The estimator's slip filter over a jittery series: same operations, so rtol 1e-13."""
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(5e-4, 1.5e-3, 5000))
+    u = np.sign(np.sin(t * 3.0)) * 3.0 + rng.normal(0.0, 0.1, t.size)
+    fast = kernel.lowpass_series(t, u, 0.02, "kernel")
+    ref = kernel.lowpass_series(t, u, 0.02, "numpy")
+    np.testing.assert_allclose(fast, ref, rtol=1e-13, atol=1e-15)
+    assert np.abs(ref - u).max() > 0.5  # the filter really filters: the check can fail
+
+
 def test_numba_is_imported_lazily():
     """Importing the model (every CLI start-up) does not load numba; the first simulate does."""
     code = ("import sys\n"
