@@ -1,11 +1,14 @@
 """Benchmark of the model core: ``python -m benchmarks.model_step [--lamellas N]``.
 
-For each spline law it prints the time per :meth:`PackModel.step` call [µs], the throughput
-of :func:`simulate` [samples/s] and both as a ratio to real time at 1 kHz (1000 samples per
-simulated second). Input: Table 3 at 10 rpm (step, incremented step, 4/12/24 s ramps, with
-lead-in/out), sampled at 1 ms, with the ``flexiforce_8`` parameters (N and law overridden).
-Each figure is the median of ``--repeat`` runs (wall clock, one core, no warm-up excluded
-except the first discretisation, which is cached before timing).
+For each spline law it prints the time per :meth:`PackModel.step` call [µs] and the cost of
+:func:`simulate` per sample [µs] with the numpy reference loop (``engine="numpy"``, the
+same-run baseline) and with the compiled kernel (``engine="kernel"``,
+:mod:`clutch_ros.model.kernel`), each also as a ratio to real time at the sample rate, and the
+kernel's speed-up over numpy. Input: Table 3 at 10 rpm (step, incremented step, 4/12/24 s
+ramps, with lead-in/out), sampled at 1 ms, with the ``flexiforce_8`` parameters (N and law
+overridden). Each figure is the median of ``--repeat`` runs, the engines interleaved within a
+run (wall clock, one core). Excluded from timing: the first discretisation and the kernel's
+compilation / cache load (one untimed simulate() per engine first).
 """
 
 from __future__ import annotations
@@ -32,17 +35,20 @@ BENCH_PARAMS = {
     "friction.stribeck_speed": 0.5, "spline.law": "ff_t", "spline.gain": 0.3786,
     "spline.time_constant": 0.9434,
 }
-LAWS = ("none", "ff_t", "ff_v", "coulomb")
+LAWS = ("none", "ff_t", "ff_v", "coulomb", "ff_t_printed", "ff_v_printed")
+ENGINES = ("numpy", "kernel")
 
 
-def bench_law(params, seq, repeat: int, step_samples: int) -> tuple[float, float]:
-    """Return (µs per step(), simulate() samples per second), medians of ``repeat`` runs."""
+def bench_law(params, seq, repeat: int, step_samples: int) -> tuple[float, dict]:
+    """Return (µs per step(), {engine: simulate() µs per sample}), medians of ``repeat``."""
     t, p, w, temp = seq.t, seq.actuating_pressure, seq.slip_speed, seq.lamella_temperature
     n = min(step_samples, t.size - 1)
     dts = np.diff(t).tolist()
     pl, wl, tl = p.tolist(), w.tolist(), temp.tolist()
     model = PackModel(params)
-    step_us, sim_rate = [], []
+    for engine in ENGINES:  # untimed: discretisation cache, kernel compilation / cache load
+        simulate(params, t, p, w, temp, model=model, engine=engine)
+    step_us, sim_us = [], {engine: [] for engine in ENGINES}
     for _ in range(repeat):
         model.reset(pl[0], tl[0], wl[0])
         step = model.step
@@ -50,10 +56,12 @@ def bench_law(params, seq, repeat: int, step_samples: int) -> tuple[float, float
         for k in range(1, n + 1):
             step(dts[k - 1], pl[k], wl[k], tl[k])
         step_us.append((time.perf_counter() - t0) / n * 1e6)
-        t0 = time.perf_counter()
-        simulate(params, t, p, w, temp, model=model)
-        sim_rate.append(t.size / (time.perf_counter() - t0))
-    return statistics.median(step_us), statistics.median(sim_rate)
+        for engine in ENGINES:
+            t0 = time.perf_counter()
+            simulate(params, t, p, w, temp, model=model, engine=engine)
+            sim_us[engine].append((time.perf_counter() - t0) / t.size * 1e6)
+    return (statistics.median(step_us),
+            {engine: statistics.median(v) for engine, v in sim_us.items()})
 
 
 def main(argv=None) -> int:
@@ -72,14 +80,17 @@ def main(argv=None) -> int:
     print(f"clutch_ros.model benchmark: N = {args.lamellas}, dt = {args.dt * 1e3:g} ms, "
           f"input Table 3 at 10 rpm ({seq.t.size} samples, {seq.t[-1]:.1f} s), "
           f"median of {args.repeat}")
-    print(f"{'law':8s} {'step() [us]':>12s} {'step x RT':>10s} {'simulate [samples/s]':>21s} "
-          f"{'simulate x RT':>14s}")
+    print(f"{'law':12s} {'step() [us]':>11s} {'step xRT':>9s} | {'simulate numpy [us]':>19s} "
+          f"{'xRT':>6s} | {'simulate kernel [us]':>20s} {'xRT':>7s} | {'speed-up':>8s}")
     for law in LAWS:
         params = base.with_law(law)
-        step_us, sim_rate = bench_law(params, seq, args.repeat, args.step_samples)
-        print(f"{law:8s} {step_us:12.1f} {1e6 / step_us / rate:10.0f} {sim_rate:21,.0f} "
-              f"{sim_rate / rate:14.0f}")
-    print("targets: step() <= 30 us, simulate() >= 500x real time at 1 kHz")
+        step_us, sim_us = bench_law(params, seq, args.repeat, args.step_samples)
+        num, ker = sim_us["numpy"], sim_us["kernel"]
+        print(f"{law:12s} {step_us:11.2f} {1e6 / step_us / rate:9.0f} | {num:19.3f} "
+              f"{1e6 / num / rate:6.0f} | {ker:20.3f} {1e6 / ker / rate:7.0f} | "
+              f"{num / ker:7.1f}x")
+    print("targets: step() <= 30 us, simulate() >= 500x real time at 1 kHz; "
+          "arithmetic limit ~1 us per step (N = 8)")
     sys.stdout.flush()
     return 0
 

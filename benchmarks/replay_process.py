@@ -9,7 +9,13 @@ and prints it as a multiple of the bag's real time (targets of issue 17: >= 1000
 
 - start-up: ``clutch replay --help`` (interpreter, imports, parser);
 - read only: a process that reads the bag the way replay does
-  (:func:`~clutch_ros.bag.rig_states.read_rig_states` with the replay's fields) and exits.
+  (:func:`~clutch_ros.bag.rig_states.read_rig_states` with the replay's fields) and exits;
+- numpy model loop (``--numpy-baseline``): the same replay with ``CLUTCH_KERNEL=0``, i.e. the
+  numpy reference loop instead of the compiled kernel (:mod:`clutch_ros.model.kernel`).
+
+Every replay process loads the kernel's compiled code from its on-disk cache (included in the
+time); only the first run after an install compiles it (a few seconds), so run the benchmark
+once more after installing.
 
 Wall time [s] and CPU time [s] (user + system of the child) are both printed: on a shared
 machine the wall time includes waiting for a core, the CPU time does not.
@@ -49,9 +55,10 @@ class ProcessRun:
         return json.loads(self.out)
 
 
-def run_process(args: list[str], timeout: float = 1800.0) -> ProcessRun:
+def run_process(args: list[str], timeout: float = 1800.0, env_extra: dict | None = None
+                ) -> ProcessRun:
     """Run ``python ARGS`` (this interpreter) and time it: wall and child CPU [s]."""
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    env = dict(os.environ, PYTHONUNBUFFERED="1", **(env_extra or {}))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, *args], capture_output=True, text=True,
@@ -70,21 +77,24 @@ def _read_only(bag: str) -> int:
     return 0
 
 
-def measure(bag: Path, laws: list[str]) -> dict:
-    """Return the figures for ``bag``: baselines and one replay per law."""
+def measure(bag: Path, laws: list[str], numpy_baseline: bool = False) -> dict:
+    """Return the figures for ``bag``: baselines and one replay per law (and engine)."""
     startup = run_process(["-m", "clutch_ros.cli", "replay", "--help"])
     read = run_process(["-m", "benchmarks.replay_process", "--read-only", str(bag)])
     samples = int(read.out.strip())
     doc = {"bag": str(bag), "samples": samples,
            "startup": {"wall_s": startup.wall_s, "cpu_s": startup.cpu_s},
            "read_only": {"wall_s": read.wall_s, "cpu_s": read.cpu_s}, "replay": {}}
-    for law in laws:
+    runs = [(law, law, None) for law in laws]
+    if numpy_baseline:
+        runs += [(f"{law} (numpy loop)", law, {"CLUTCH_KERNEL": "0"}) for law in laws]
+    for key, law, env_extra in runs:
         run = run_process(["-m", "clutch_ros.cli", "replay", str(bag), "--params",
-                           "flexiforce_8", "--law", law, "--json"])
+                           "flexiforce_8", "--law", law, "--json"], env_extra=env_extra)
         summary = run.json()[0]
         if summary["samples"] != samples:
             raise RuntimeError(f"replay saw {summary['samples']} of {samples} samples")
-        doc["replay"][law] = {"wall_s": run.wall_s, "cpu_s": run.cpu_s,
+        doc["replay"][key] = {"wall_s": run.wall_s, "cpu_s": run.cpu_s,
                               "read_s": summary["read_s"], "estimate_s": summary["estimate_s"]}
     return doc
 
@@ -99,6 +109,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="length of the generated bag [s] (default 3600)")
     parser.add_argument("--rate", type=float, default=1000.0, help="its sample rate [Hz]")
     parser.add_argument("--laws", nargs="+", default=["ff_t", "coulomb"])
+    parser.add_argument("--numpy-baseline", action="store_true",
+                        help="also replay each law with the numpy model loop (CLUTCH_KERNEL=0)")
     parser.add_argument("--json", action="store_true")
     parser.add_argument("--read-only", metavar="BAG", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -108,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         bag = Path(args.bag) if args.bag else Path(tmp) / "hour"
         if not args.bag:
             generate_bag(bag, args.seconds, args.rate)
-        doc = measure(bag, args.laws)
+        doc = measure(bag, args.laws, args.numpy_baseline)
     rate = args.rate
     realtime = doc["samples"] / rate  # [s] of rig time in the bag
     doc["realtime_s"] = realtime
@@ -116,12 +128,12 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(doc))
         return 0
     print(f"bag: {doc['samples']} samples = {realtime:g} s of rig time at {rate:g} Hz")
-    print(f"{'whole process':34s} {'wall [s]':>9s} {'CPU [s]':>8s} {'x real time (wall)':>19s}")
+    print(f"{'whole process':36s} {'wall [s]':>9s} {'CPU [s]':>8s} {'x real time (wall)':>19s}")
     rows = [("baseline: start-up (replay --help)", doc["startup"]),
             ("baseline: read only (replay fields)", doc["read_only"])]
     rows += [(f"clutch replay --law {law}", r) for law, r in doc["replay"].items()]
     for label, r in rows:
-        print(f"{label:34s} {r['wall_s']:9.2f} {r['cpu_s']:8.2f} "
+        print(f"{label:36s} {r['wall_s']:9.2f} {r['cpu_s']:8.2f} "
               f"{realtime / r['wall_s']:18,.0f}x")
     for law, r in doc["replay"].items():
         target = TARGETS.get(law)

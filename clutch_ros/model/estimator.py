@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clutch_ros.model import kernel
 from clutch_ros.model.errors import (
     DuplicateSample,
     InputError,
@@ -44,7 +45,7 @@ from clutch_ros.model.errors import (
 )
 from clutch_ros.model.pack import PackModel
 from clutch_ros.model.simulate import simulate
-from clutch_ros.model.slip import SlipFilter, lowpass_series
+from clutch_ros.model.slip import SlipFilter
 
 __all__ = ["ClutchEstimator", "Estimate", "EstimateBatch", "estimate_batch"]
 
@@ -246,13 +247,14 @@ def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_spee
                    measured_torque=None, *, max_gap_s: float = 1.0,
                    accuracy_min_torque: float = 1.0, overshoot_limit: float = 1.1,
                    undershoot_limit: float = 0.9, on_reject: str = "raise",
-                   model: PackModel | None = None) -> EstimateBatch:
+                   model: PackModel | None = None, engine: str = "auto") -> EstimateBatch:
     """Estimate a whole series; identical to looping ``ClutchEstimator.update()``.
 
     Inputs broadcast to ``t``'s shape (1-D stamps [s]); ``measured_torque`` None means no
     measurement. ``on_reject``: ``"raise"`` raises the first sample's SampleRejected, like an
     update loop that does not catch; ``"skip"`` leaves NaN rows (``accepted`` False), like one
-    that catches and continues.
+    that catches and continues. ``engine``: the model loop, ``"auto"`` | ``"kernel"`` |
+    ``"numpy"`` (see :func:`~clutch_ros.model.simulate.simulate`).
     """
     if on_reject not in ("raise", "skip"):
         raise InputError(f"on_reject must be 'raise' or 'skip', got {on_reject!r}")
@@ -288,8 +290,10 @@ def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_spee
         model = model if model is not None else PackModel(params)
         for a, b in zip(starts[:-1].tolist(), starts[1:].tolist()):
             rows = idx[a:b]
-            omega_f = lowpass_series(t[rows], omega[rows], params.slip.filter_time_constant)
-            sim = simulate(params, t[rows], p[rows], omega_f, temp[rows], model=model)
+            omega_f = kernel.lowpass_series(t[rows], omega[rows],
+                                            params.slip.filter_time_constant, engine)
+            sim = simulate(params, t[rows], p[rows], omega_f, temp[rows], model=model,
+                           engine=engine)
             reinit[rows[0]] = True
             out["modelled_torque"][rows] = sim.torque
             out["reference_torque"][rows] = sim.reference_torque

@@ -7,7 +7,12 @@
 runs (:meth:`PackModel._advance`: same discretisation cache, same law code, film and thermal
 states); only the outputs are computed vectorised afterwards, so results equal the step loop to
 rounding. (μ depends on the pack's state, so the whole-block fast paths of earlier versions,
-which needed μ known in advance, are gone; a compiled kernel is the way to speed this up.)
+which needed μ known in advance, are gone.)
+
+Engines: ``engine="numpy"`` runs that loop (the reference); ``"kernel"`` runs the same steps
+compiled (:mod:`clutch_ros.model.kernel`, numba; equal to the reference to rounding, see
+tests/model/test_kernel.py) and raises if it cannot; ``"auto"`` (default) uses the kernel when
+it is available and otherwise the numpy loop, logging why (the result says which ran).
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clutch_ros.model import kernel
 from clutch_ros.model.errors import DuplicateSample, InputError, NonFiniteSample, OutOfOrderSample
 from clutch_ros.model.friction import friction_coefficient, sign_factor
 from clutch_ros.model.pack import PackModel
@@ -40,6 +46,7 @@ class SimulationResult:
         compression: z_N [m]
         positions: (n, N) z_n [m]; velocities: (n, N) ż_n [m/s]
         law: spline law name
+        engine: which loop ran, ``"kernel"`` or ``"numpy"`` (see the module docstring)
 
     """
 
@@ -60,6 +67,7 @@ class SimulationResult:
     velocities: np.ndarray
     law: str
     film: np.ndarray
+    engine: str = "numpy"
 
     def __len__(self) -> int:
         return int(self.t.size)
@@ -97,15 +105,17 @@ def as_series(t, *values, names=("actuating_pressure", "slip_speed", "lamella_te
 
 
 def simulate(params, t, actuating_pressure, slip_speed, lamella_temperature,
-             initial_pressure: float | None = None, *, model: PackModel | None = None
-             ) -> SimulationResult:
+             initial_pressure: float | None = None, *, model: PackModel | None = None,
+             engine: str = "auto") -> SimulationResult:
     """Simulate the pack over stamps ``t`` [s] (module docstring); return the outputs.
 
     ``actuating_pressure`` [Pa], ``slip_speed`` [rad/s] and ``lamella_temperature`` [°C]
     are arrays of t's shape or scalars; a NaN temperature means "not measured" (the model's
     thermal state is used). ``model`` (optional) is used instead of a fresh
     :class:`PackModel` (its dt cache is reused; its state is reset and left at the end).
+    ``engine``: ``"auto"`` | ``"kernel"`` | ``"numpy"`` (module docstring).
     """
+    kernel.check_engine(engine)
     t, press, omega, temp = as_series(t, actuating_pressure, slip_speed, lamella_temperature)
     if model is None:
         model = PackModel(params)
@@ -123,18 +133,23 @@ def simulate(params, t, actuating_pressure, slip_speed, lamella_temperature,
     films = np.empty(n)
     temps[0], films[0] = model._temp, model._film
     law = model.law
+    ran = "numpy"
     if n > 1:
-        torque = _loop(model, t, press, omega, temp, sign, states, forces, temps, films)
+        torque, ran = _loop(model, t, press, omega, temp, sign, states, forces, temps, films,
+                            engine)
         if law.has_force and not law.records_forces:
             forces[1:] = law.forces_series(states[:-1, lay.law_states],
                                            states[1:, lay.law_states], torque)
-    return _outputs(params, model, t, press, omega, temps, films, sign, states, forces)
+    result = _outputs(params, model, t, press, omega, temps, films, sign, states, forces)
+    result.engine = ran
+    return result
 
 
-def _loop(model, t, press, omega, temp, sign, states, forces, temps, films):
-    """Run steps 1..n-1 with :meth:`PackModel._advance` (the code ``step()`` runs).
+def _loop(model, t, press, omega, temp, sign, states, forces, temps, films, engine):
+    """Run steps 1..n-1 compiled or with :meth:`PackModel._advance` (the code ``step()`` runs).
 
-    Fills the state, force, temperature and film rows; returns the law's torque per step.
+    Fills the state, force, temperature and film rows; returns (the law's torque per step,
+    the engine that ran).
     """
     lay = model.layout
     nx = lay.n_state
@@ -152,6 +167,10 @@ def _loop(model, t, press, omega, temp, sign, states, forces, temps, films):
         table = [model.discretisation(float(k) * res) for k in uniq.tolist()]
     else:
         table = [model.discretisation(float(d)) for d in uniq.tolist()]
+    torque = kernel.run_loop(model, table, inverse, dts, press, omega, temp, sign, states,
+                             forces, temps, films, engine)
+    if torque is not None:
+        return torque, "kernel"
     entries = [table[i] for i in inverse.tolist()]
     record = law.records_forces
     fview = work[lay.forces]
@@ -166,7 +185,7 @@ def _loop(model, t, press, omega, temp, sign, states, forces, temps, films):
             forces[k] = fview
         temps[k] = model._temp
         films[k] = model._film
-    return torque
+    return torque, "numpy"
 
 
 def _outputs(params, model, t, press, omega, temps, films, sign, states, forces):

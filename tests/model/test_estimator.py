@@ -132,15 +132,16 @@ def _series():
     return t, seq.actuating_pressure, np.full(t.size, 40.0), seq.slip_speed, measured
 
 
+@pytest.mark.parametrize("engine", ["numpy", "kernel"])
 @pytest.mark.parametrize("law", ["ff_t", "coulomb"])
-def test_batch_equals_update_loop(flexiforce, law):
+def test_batch_equals_update_loop(flexiforce, law, engine):
     params = flexiforce.with_law(law)
     t, p, temp, w, meas = _series()
     # bad samples: a duplicate, an out-of-order stamp, a NaN pressure, an inf measurement
     t[100], t[200] = t[99], t[150]
     p[300] = math.nan
     meas[400] = math.inf
-    batch = estimate_batch(params, t, p, temp, w, meas, on_reject="skip")
+    batch = estimate_batch(params, t, p, temp, w, meas, on_reject="skip", engine=engine)
     est = ClutchEstimator(params)
     rows = []
     for k in range(t.size):
@@ -160,6 +161,17 @@ def test_batch_equals_update_loop(flexiforce, law):
             continue
         scale = max(np.nanmax(np.abs(loop)), 1e-300)
         # same kernels; mu vectorised vs scalar may differ in the last bit
+        if engine == "kernel" and law == "coulomb" and name in ("spline_friction_force",
+                                                                 "spline_correction"):
+            # the compiled loop re-solves the box to 1e-12 where step() keeps a set that
+            # holds to 1e-9 of F_act: the spline forces (and their pressure equivalent) to
+            # 1e-6 of the largest, as in test_kernel.py and test_simulate.py (observed 2e-9
+            # to 7e-8)
+            scale *= 1e3
+        if engine == "kernel" and name == "pressure_difference":
+            # front − rear cancels two pressures; it keeps their absolute rounding (and the
+            # coulomb force difference above): 1e-9 of the front pressure, as in test_simulate
+            scale = np.nanmax(np.abs(batch.front_pressure))
         assert_allclose(got, loop, rtol=0, atol=1e-9 * scale, equal_nan=True, err_msg=name)
     assert np.isnan(batch.modelled_torque[~accepted]).all()
     with pytest.raises(DuplicateSample):

@@ -16,6 +16,7 @@ from clutch_ros.model import (
 )
 from clutch_ros.model.sequences import concatenate, pbd_sequence, ramp_sequence, table3
 
+BOX_LAWS = ("coulomb", "ff_t", "ff_v")
 FIELDS = ("torque", "reference_torque", "mu", "normal_force", "spline_force", "front_pressure",
           "rear_pressure", "pressure_difference", "compression")
 
@@ -34,8 +35,16 @@ def _inputs():
 def _assert_equals_step_loop(params, res, t, p, w, temp):
     """Compare ``res`` with reset() + output() + step() per sample; return the loop's model.
 
-    Same kernel; only mu is computed vectorised (may differ in the last bit), so each field
-    agrees to 1e-9 of its largest magnitude.
+    numpy engine: same per-sample code; only mu is computed vectorised (may differ in the last
+    bit), so each field agrees to 1e-9 of its largest magnitude. Compiled kernel: the same
+    operations, the ZOH product summed in another order, so fields agree to the same 1e-9,
+    except the pressure difference front − rear: it cancels two pressures of up to ~1e7 Pa, so
+    it keeps their absolute rounding (observed ~2e-7 Pa where it is ~0.03 Pa); it is held to
+    1e-9 of the front pressure's largest magnitude instead; and the spline forces of the box
+    laws (coulomb, passive ff_t / ff_v): step() keeps the previous active set while its
+    conditions hold to 1e-9 of F_act, the kernel re-solves to 1e-12, so the stuck forces differ
+    by the stuck subsystem's amplification of that (observed ≤ 3e-8 of the largest force);
+    held to 1e-6 of the largest force, the tolerance tests/model/test_kernel.py uses.
     """
     model = PackModel(params)
     model.reset(p[0], temp[0], w[0])
@@ -44,15 +53,21 @@ def _assert_equals_step_loop(params, res, t, p, w, temp):
     for name in FIELDS:
         loop = np.array([getattr(s, name) for s in samples])
         scale = max(np.abs(loop).max(), 1e-300)
+        if name == "pressure_difference" and res.engine == "kernel":
+            scale = np.abs(res.front_pressure).max()
+        if name == "spline_force" and res.engine == "kernel" and params.spline.law in BOX_LAWS:
+            scale *= 1e3  # atol 1e-6 of the largest force (docstring)
         assert_allclose(getattr(res, name), loop, rtol=0, atol=1e-9 * scale, err_msg=name)
     return model
 
 
+@pytest.mark.parametrize("engine", ["numpy", "kernel"])
 @pytest.mark.parametrize("law", ["none", "ff_t", "ff_v", "coulomb"])
-def test_simulate_equals_step_loop(flexiforce, law):
+def test_simulate_equals_step_loop(flexiforce, law, engine):
     params = flexiforce.with_law(law)
     t, p, w, temp = _inputs()
-    res = simulate(params, t, p, w, temp)
+    res = simulate(params, t, p, w, temp, engine=engine)
+    assert res.engine == engine
     _assert_equals_step_loop(params, res, t, p, w, temp)
     assert res.law == law and len(res) == t.size
     assert res.normal_force.shape == (t.size, 8) and res.positions.shape == (t.size, 8)
@@ -93,7 +108,8 @@ def test_model_reuse_keeps_cache(flexiforce):
 
 @pytest.mark.parametrize("law", ["ff_v", "coulomb"])
 @pytest.mark.parametrize("slip", [10.0, -10.0])
-def test_batch_kernels_equal_step_loop_on_table3(flexiforce, truth, law, slip):
+@pytest.mark.parametrize("engine", ["numpy", "kernel"])
+def test_batch_kernels_equal_step_loop_on_table3(flexiforce, truth, law, slip, engine):
     """Uniform 1 ms Table 3 (step, incremented step, 4 s ramp): the batch paths equal step().
 
     ff_v writes its rows in place; coulomb advances blocks of an unchanged sliding set and
@@ -103,7 +119,7 @@ def test_batch_kernels_equal_step_loop_on_table3(flexiforce, truth, law, slip):
     seq = concatenate(table3(slip, 1e-3)[:3])
     t, p, w, temp = seq.t, seq.actuating_pressure, seq.slip_speed, seq.lamella_temperature
     batch = PackModel(params)
-    res = simulate(params, t, p, w, temp, model=batch)
+    res = simulate(params, t, p, w, temp, model=batch, engine=engine)
     model = _assert_equals_step_loop(params, res, t, p, w, temp)
     end, ref = batch.state, model.state
     assert_allclose(end.work, ref.work, rtol=1e-9, atol=1e-9 * np.abs(ref.work).max())
