@@ -4,7 +4,7 @@ No ROS, CAN, bag or file I/O here (``clutch_ros.config.params_file`` reads the Y
 (pressure Pa, force N, torque N m, speed rad/s, time s) with temperatures in °C; every module
 documents its quantities. Main entry points:
 
-- :class:`ClutchParams` (+ :data:`PARAMETER_SPECS`): validated parameters, DESIGN.md keys.
+- :class:`ClutchParams` (+ :data:`PARAMETER_SPECS`): validated parameters (README.md keys).
 - :func:`friction_coefficient`, :func:`reference_torque` (Eq. 1), :func:`torque_capacity`.
 - :func:`slip_speed_from_wheels` (Eq. 4), :func:`slip_speed_from_shafts`,
   :func:`base_speed`, :class:`SlipFilter`.

@@ -1,4 +1,4 @@
-"""Typed, validated model parameters (DESIGN.md keys, SI units, temperatures in °C).
+"""Typed, validated model parameters (the README.md parameter keys, SI units, temperatures in °C).
 
 The flat form is a mapping of dotted keys (``clutch.lamella_count``...), exactly as the ROS 2
 parameter files and nodes use them; :class:`ClutchParams` is the nested, frozen form the model
@@ -128,7 +128,7 @@ def _spec(key, unit, description, kind="float", minimum=None, maximum=None, defa
                           min_exclusive, tuple(choices))
 
 
-#: Every model key (DESIGN.md contract plus model extras with defaults).
+#: Every model key (the README.md parameter contract plus model extras with defaults).
 PARAMETER_SPECS: dict[str, ParamSpec] = dict([
     _spec("clutch.lamella_count", "", "number of lamellas N (2 friction surfaces each)",
           "int", 1, 100),

@@ -4,7 +4,7 @@ Runs the model core's :class:`clutch_ros.model.ClutchEstimator` (lamella pack + 
 law) on every ``rig_state`` sample, using the message stamps for time (never wall time), so a
 bag replayed at any speed gives the same estimates. Samples that are NaN/inf, out of order,
 duplicated or older than ``estimator.max_sample_age`` are skipped, counted and reported on
-``/diagnostics``; a NaN torque is never published. Model parameters are the DESIGN.md keys
+``/diagnostics``; a NaN torque is never published. Model parameters are the README.md keys
 (``clutch.*``, ``friction.*``, ``spline.*``, ``slip.*``); runtime changes are validated by the
 model and rejected with its reason (their ranges are the model's, stated in the descriptors'
 ``additional_constraints``), and applied without losing the pack state.
