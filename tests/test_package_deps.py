@@ -38,7 +38,7 @@ ROSDEP_KEYS = {
 }
 #: modules with no rosdep key: installed with pip as README.md says
 PIP_ONLY = {"asammdf": "asammdf==8.8.28", "foxglove": "foxglove-sdk==0.30.3",
-            "distributed": "distributed==2026.8.0"}
+            "distributed": "distributed==2026.8.0", "numba": "numba==0.68.1"}
 #: modules the package imports only as what a declared package installs: module -> why
 PROVIDED = {
     "lz4": "python3-rosbags-pip (a rosbags dependency; lz4-compressed MCAP chunks)",

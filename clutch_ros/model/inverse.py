@@ -32,7 +32,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 from clutch_ros.model.errors import InputError, UnreachableTorqueError
 from clutch_ros.model.friction import mu_scalar
@@ -106,6 +105,10 @@ def solve_pressure(params, torque: float, lamella_temperature: float, slip_speed
         p_ss = p_max
         reason = f"unreachable: {torque:.1f} N m > {cap_max:.1f} N m at max pressure"
     else:
+        # scipy.optimize takes ~0.7 s to import: loaded by the first inversion, not by
+        # everything that imports this module (clutch replay's start-up)
+        from scipy.optimize import brentq
+
         p_ss = brentq(lambda p: capacity_scalar(params, p, lamella_temperature, slip_speed, film)
                       - torque, 0.0, p_max, xtol=1e-9, rtol=4 * np.finfo(float).eps,
                       maxiter=200)

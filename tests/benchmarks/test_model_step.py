@@ -8,5 +8,10 @@ def test_bench_prints_every_law(capsys):
     out = capsys.readouterr().out
     for law in bench.LAWS:
         line = next(x for x in out.splitlines() if x.startswith(law + " "))
-        assert len(line.split()) == 5  # law, us/step, xRT, samples/s, xRT
+        # law | step() us, xRT | simulate numpy us, xRT | simulate kernel us, xRT | speed-up
+        cells = [c.split() for c in line.split("|")]
+        assert [len(c) for c in cells] == [3, 2, 2, 1], line
+        for value in (*cells[0][1:], *cells[1], *cells[2]):
+            assert float(value) > 0.0, line
+        assert cells[3][0].endswith("x") and float(cells[3][0][:-1]) > 0.0, line
     assert "targets" in out
