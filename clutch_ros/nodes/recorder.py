@@ -87,6 +87,10 @@ PARAMS = [
     ParamSpec("recorder.topics", list(DEFAULT_TOPICS), "topics to record (clutch topics by "
               "relative name, any other topic with the type the graph advertises); "
               "read-only: subscriptions are made at start", read_only=True),
+    ParamSpec("recorder.discovery_wait", 1.0, "at start, wait up to this long for the "
+              "publishers of the recorded topics to be discovered, so each topic is "
+              "subscribed with the reliability its publishers offer; read-only: used once",
+              "s", 0.0, 10.0, read_only=True),
     ParamSpec("recorder.queue_depth", 10000, "subscription queue of best-effort topics "
               "(rig_state): samples a burst may run ahead of the recorder; read-only: a DDS "
               "reader's history depth is fixed when it is created", "messages",
@@ -133,6 +137,8 @@ class RecorderNode(Node):
         self.loss = LossTracker()
         self._pending = []
         self._best_effort: set[str] = set()
+        self._await_publishers([t for t in cfg["recorder.topics"] if t in DEFAULT_TOPICS],
+                               cfg["recorder.discovery_wait"])
         for topic in cfg["recorder.topics"]:
             if topic in DEFAULT_TOPICS:
                 self._subscribe(topic, *DEFAULT_TOPICS[topic])
@@ -148,6 +154,19 @@ class RecorderNode(Node):
                                f"{waiting} to {self.output}")
 
     # -- topics ---------------------------------------------------------------------------
+    def _await_publishers(self, topics: list[str], timeout: float) -> None:
+        """Wait up to ``timeout`` [s] until every topic in ``topics`` has a known publisher.
+
+        Right after the node starts, DDS discovery has not seen the publishers yet, and the
+        reliability of a subscription is chosen from what the publishers offer
+        (:meth:`_offered_reliable`). The graph cache is filled by the middleware's own
+        discovery thread, so polling it needs no spinning.
+        """
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not all(
+                self.count_publishers(self.resolve_topic_name(t)) for t in topics):
+            time.sleep(0.02)
+
     def _offered_reliable(self, topic: str, default: bool) -> bool:
         """Return True when every publisher of ``topic`` offers reliable (default: none yet)."""
         infos = self.get_publishers_info_by_topic(self.resolve_topic_name(topic))

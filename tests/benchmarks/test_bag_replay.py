@@ -33,7 +33,8 @@ def test_bench_prints_samples_per_second(capsys):
         rate, _, realtime, _, _, vs_bare, _ = line[len(label) :].split()
         # a figure, not a timed assertion (the first replay may pay the kernel's compilation)
         assert float(rate.replace(",", "")) > 0.0
-        assert float(realtime.replace(",", "").rstrip("x")) > 0.0 and float(vs_bare[:-1]) > 0
+        # printed as whole multiples of real time: a cold kernel cache can print 0x
+        assert float(realtime.replace(",", "").rstrip("x")) >= 0.0 and float(vs_bare[:-1]) >= 0
     assert "of which read_rig_states" in out and "estimate_batch" in out
     assert "replay targets: >= 100x real time" in out
     assert bench.main(["--seconds", "1", "--storage", "sqlite3", "--json"]) == 0
