@@ -1,16 +1,14 @@
 """The ``recorder`` node: clutch topics (or any topics) into rosbag2 bags via rosbags.
 
 Topics: ``recorder.topics`` (default: every clutch topic, ``pump_request`` and
-``/diagnostics``). A name outside that table is recorded with the type the ROS graph
-advertises for it, looked up at start and every second until a publisher appears (its type
-must be in the bag typestore: the clutch messages and the ROS 2 base distribution).
+``/diagnostics``). Each topic is subscribed once the ROS graph shows a publisher of it
+(looked up at start and every 0.25 s after), as ``ros2 bag record`` does; a name outside
+that table is recorded with the type the graph advertises for it (its type must be in the
+bag typestore: the clutch messages and the ROS 2 base distribution).
 
 Subscriptions are *raw* (the CDR bytes as they arrived over DDS are written unchanged, so the
-recording is lossless and costs no deserialization). Reliable topics are subscribed with
-KEEP_ALL history so a burst is queued rather than overwritten; ``rig_state`` is subscribed
-best effort with a deep queue (``recorder.queue_depth``), which matches a best-effort and a
-reliable publisher alike. The bag's timestamps are the receive times on the node clock
-(``use_sim_time`` gives sim time), as ``ros2 bag record`` stores them.
+recording is lossless and costs no deserialization). The bag's timestamps are the receive
+times on the node clock (``use_sim_time`` gives sim time), as ``ros2 bag record`` stores them.
 
 Splitting (``recorder.split_size`` [bytes] and/or ``recorder.split_duration`` [s], live):
 ``recorder.output`` becomes a directory of complete bags ``part_0000``, ``part_0001`` ...,
@@ -20,16 +18,23 @@ rosbag2's files inside one bag, so every part replays and imports on its own). W
 ``recorder.output`` is the bag itself.
 
 QoS: a topic whose publishers (when the recorder subscribes, as ``ros2 bag record`` decides)
-all offer reliable is subscribed reliable with KEEP_ALL history; otherwise (or with no
-publisher yet, for ``rig_state``) best effort with a ``recorder.queue_depth`` queue.
+all offer reliable is subscribed reliable with KEEP_ALL history, so a burst is queued rather
+than overwritten; otherwise best effort with a ``recorder.queue_depth`` queue, which matches
+every publisher.
 
 Loss accounting (:class:`clutch_ros.nodes.loss_tracker.LossTracker`): every sample carries its
 publisher's DDS sequence number, so a gap is counted exactly, per topic, as ``dropped`` and
 stored in the bag (``custom_data`` ``clutch_ros.dropped``); samples a publisher sent before the
 first one seen here are ``missed_at_start``. The tail of a burst: on SIGINT/SIGTERM the node
 first drains what DDS still holds for it (spinning until nothing arrived for
-``recorder.drain_quiet`` or ``recorder.drain_timeout`` passed) and only then closes the bag,
-so messages queued at shutdown are written, not silently lost. Counts (received, written,
+``recorder.drain_quiet``, default 3.5 s, or ``recorder.drain_timeout`` passed) and only then
+closes the bag, so messages queued at shutdown are written, not silently lost. The quiet time
+is longer than the 3 s heartbeat period of a Fast DDS reliable writer: a tail lost in
+transport is announced by the writer's next heartbeat and repaired (or, when a KEEP_LAST
+writer no longer holds it, shown as a sequence gap and counted) before the bag is closed.
+(The tail losses once seen here, 90-220 of a 20,000-message burst neither written nor
+counted, came from a reliable topic subscribed best effort because its publisher was
+discovered late; topics are therefore subscribed only once a publisher is known.) Counts (received, written,
 dropped) are on ``/diagnostics`` (WARN once anything was dropped) and, on shutdown, in one log
 line ``recorder summary: {json}`` and in the bags' ``custom_data``. Exact means: with
 reliable publishers every sample is either written or counted (a KEEP_LAST publisher's
@@ -68,15 +73,16 @@ from clutch_ros.nodes.parameters import (
 from clutch_ros.nodes.runner import make_executor
 
 NAME = "recorder"
-#: topic -> (ROS type "pkg/msg/Name", reliable?)
+RESOLVE_PERIOD = 0.25  # [s] how often topics without a publisher yet are looked up
+#: clutch topic -> its ROS type "pkg/msg/Name"
 DEFAULT_TOPICS = {
-    "rig_state": ("clutch_msgs/msg/RigState", False),
-    "clutch_estimate": ("clutch_msgs/msg/ClutchEstimate", True),
-    "torque_request": ("clutch_msgs/msg/TorqueRequest", True),
-    "pressure_command": ("clutch_msgs/msg/PressureCommand", True),
-    "pump_request": ("clutch_msgs/msg/PressureCommand", True),
-    "can_frames": ("clutch_msgs/msg/CanFrame", True),
-    "/diagnostics": ("diagnostic_msgs/msg/DiagnosticArray", True),
+    "rig_state": "clutch_msgs/msg/RigState",
+    "clutch_estimate": "clutch_msgs/msg/ClutchEstimate",
+    "torque_request": "clutch_msgs/msg/TorqueRequest",
+    "pressure_command": "clutch_msgs/msg/PressureCommand",
+    "pump_request": "clutch_msgs/msg/PressureCommand",
+    "can_frames": "clutch_msgs/msg/CanFrame",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 PARAMS = [
     ParamSpec("recorder.output", "", "bag directory to create (must not exist); empty: "
@@ -88,8 +94,8 @@ PARAMS = [
               "relative name, any other topic with the type the graph advertises); "
               "read-only: subscriptions are made at start", read_only=True),
     ParamSpec("recorder.discovery_wait", 1.0, "at start, wait up to this long for the "
-              "publishers of the recorded topics to be discovered, so each topic is "
-              "subscribed with the reliability its publishers offer; read-only: used once",
+              "publishers of the recorded topics to be discovered before subscribing (a topic "
+              "whose publisher appears later is subscribed then); read-only: used once",
               "s", 0.0, 10.0, read_only=True),
     ParamSpec("recorder.queue_depth", 10000, "subscription queue of best-effort topics "
               "(rig_state): samples a burst may run ahead of the recorder; read-only: a DDS "
@@ -99,9 +105,11 @@ PARAMS = [
               "many message bytes; 0: no size split; live", "B", 0, 2**62),
     ParamSpec("recorder.split_duration", 0.0, "start a new part when the current one spans "
               "this long (receive time); 0: no time split; live", "s", 0.0, 1e7),
-    ParamSpec("recorder.drain_quiet", 0.5, "at shutdown, keep taking queued messages until "
-              "none arrived for this long", "s", 0.0, 60.0),
-    ParamSpec("recorder.drain_timeout", 10.0, "at shutdown, stop draining after this long",
+    ParamSpec("recorder.drain_quiet", 3.5, "at shutdown, keep taking queued messages until "
+              "none arrived for this long (longer than the 3 s heartbeat period of a Fast DDS "
+              "reliable writer, which repairs a lost tail); live", "s", 0.0, 60.0),
+    ParamSpec("recorder.drain_timeout", 10.0, "at shutdown, stop draining after this long; "
+              "live",
               "s", 0.0, 600.0),
     HARDWARE_ID_PARAM,
 ]
@@ -139,14 +147,14 @@ class RecorderNode(Node):
         self._best_effort: set[str] = set()
         self._await_publishers([t for t in cfg["recorder.topics"] if t in DEFAULT_TOPICS],
                                cfg["recorder.discovery_wait"])
-        for topic in cfg["recorder.topics"]:
+        self._pending = [t for t in dict.fromkeys(cfg["recorder.topics"]) if t]
+        for topic in self._pending:  # in the bag and the counts from the start, 0 or not
             if topic in DEFAULT_TOPICS:
-                self._subscribe(topic, *DEFAULT_TOPICS[topic])
-            elif topic:
-                self._pending.append(topic)
+                self._register(topic, DEFAULT_TOPICS[topic])
+        self._resolver = None
+        self._resolve_pending()
         if self._pending:
-            self._resolve_pending()
-            self._resolver = self.create_timer(1.0, self._resolve_pending)
+            self._resolver = self.create_timer(RESOLVE_PERIOD, self._resolve_pending)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
         waiting = f" (waiting for {', '.join(self._pending)})" if self._pending else ""
@@ -174,9 +182,15 @@ class RecorderNode(Node):
             return default
         return all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
 
-    def _subscribe(self, topic: str, typename: str, reliable: bool) -> None:
+    def _register(self, topic: str, typename: str) -> str:
+        """Add ``topic`` to the bag and the loss counts (idempotent); return its full name."""
         name = self._writer.add_topic(topic, typename)
         self._types[name] = typename
+        self.loss.add_topic(name)
+        return name
+
+    def _subscribe(self, topic: str, typename: str, reliable: bool) -> None:
+        name = self._register(topic, typename)
         reliable = self._offered_reliable(topic, reliable)
         if not reliable:
             self._best_effort.add(name)
@@ -186,24 +200,31 @@ class RecorderNode(Node):
         else:
             qos = QoSProfile(depth=self._cfg["recorder.queue_depth"],
                              reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.loss.add_topic(name)
         self.create_subscription(_msg_class(typename), topic, self._writer_for(name), qos,
                                  raw=True)
 
     def _resolve_pending(self) -> None:
-        """Subscribe to pending topics whose type the graph now advertises."""
+        """Subscribe to pending topics that now have a publisher.
+
+        A topic is subscribed once the graph shows a publisher of it (as ``ros2 bag record``
+        does), so its reliability is chosen from what the publishers offer, however long
+        their discovery takes (on a loaded machine it took more than the 1 s
+        ``recorder.discovery_wait``, and a reliable topic was recorded best effort). A clutch
+        topic has its known type; any other the type the graph advertises.
+        """
         advertised = dict(self.get_topic_names_and_types())
         for topic in list(self._pending):
             types = advertised.get(self.resolve_topic_name(topic))
-            if not types:
+            if not types or not self.count_publishers(self.resolve_topic_name(topic)):
                 continue
             self._pending.remove(topic)
+            typename = DEFAULT_TOPICS.get(topic, types[0])
             try:
-                self._subscribe(topic, types[0], True)
-                self.get_logger().info(f"recording {topic} ({types[0]})")
+                self._subscribe(topic, typename, True)
+                self.get_logger().info(f"recording {topic} ({typename})")
             except (ClutchError, ImportError, AttributeError) as err:
-                self.get_logger().error(f"cannot record {topic} ({types[0]}): {err}")
-        if not self._pending and getattr(self, "_resolver", None) is not None:
+                self.get_logger().error(f"cannot record {topic} ({typename}): {err}")
+        if not self._pending and self._resolver is not None:
             self.destroy_timer(self._resolver)
             self._resolver = None
 

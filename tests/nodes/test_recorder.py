@@ -171,9 +171,6 @@ def _summary(recorder) -> dict:
     return json.loads(log.split("recorder summary: ", 1)[1].splitlines()[0])
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "known open defect (issue 13, finding 8): in about half the runs 90-220 of the 20,000 "
-    "rig_state messages at the very tail are neither recorded nor counted lost"))
 def test_tail_of_a_burst_is_recorded_or_counted_and_parts_split(ros_env, tmp_path):
     """SIGINT right after a 20,000-message burst: recorded + reported lost = sent, per topic.
 
