@@ -34,7 +34,8 @@ transport is announced by the writer's next heartbeat and repaired (or, when a K
 writer no longer holds it, shown as a sequence gap and counted) before the bag is closed.
 (The tail losses once seen here, 90-220 of a 20,000-message burst neither written nor
 counted, came from a reliable topic subscribed best effort because its publisher was
-discovered late; topics are therefore subscribed only once a publisher is known.) Counts (received, written,
+discovered late; topics are therefore subscribed only once a publisher is known.)
+Counts (received, written,
 dropped) are on ``/diagnostics`` (WARN once anything was dropped) and, on shutdown, in one log
 line ``recorder summary: {json}`` and in the bags' ``custom_data``. Exact means: with
 reliable publishers every sample is either written or counted (a KEEP_LAST publisher's
