@@ -35,7 +35,7 @@ from clutch_ros.config.presets import default_preset
 from clutch_ros.errors import ClutchError
 from clutch_ros.model import SampleRejected
 from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimator
-from clutch_ros.nodes.convert import adaptation_to_msg, estimate_to_msg
+from clutch_ros.nodes.convert import EstimateMessage
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.loss_tracker import LossTracker
 from clutch_ros.nodes.model_params import (
@@ -118,11 +118,13 @@ class EstimatorNode(Node):
         self._last_error = ""
         self._warn = LogThrottle(5.0)
         self._pub = self.create_publisher(_msg_type(), "clutch_estimate", reliable_qos())
+        self._out = EstimateMessage(self._pub.msg_type)
+        # The node clock's C handle: its get_now() is the node's time (ROS time, /clock with
+        # use_sim_time) without a rclpy Time object per sample.
+        self._clock_handle = self.get_clock().handle
         # Sensor-data QoS (best effort) as the bridge offers it, with a deep queue so a
         # stall of the estimator does not overwrite samples; samples lost anyway are counted
         # exactly from the DDS publication sequence numbers.
-
-
         self._loss = LossTracker()
         self._loss.add_topic("rig_state")
         self.create_subscription(_rig_state_type(), "rig_state", self._on_rig_state,
@@ -144,8 +146,7 @@ class EstimatorNode(Node):
             self._skip("internal_error", f"{type(err).__name__}: {err}")
 
     def _estimate(self, msg) -> None:
-
-        now = self.get_clock().now().nanoseconds * 1e-9
+        now = self._clock_handle.get_now().nanoseconds * 1e-9  # [s] node clock
         self._peers.seen("rig data", now)
         stamp = stamp_to_sec(msg.header.stamp)
         max_age = self._cfg["estimator.max_sample_age"]
@@ -164,8 +165,7 @@ class EstimatorNode(Node):
             self._skip("non_finite_output", "model produced a non-finite torque")
             return
         self._accepted += 1
-        out = estimate_to_msg(est, msg.header, self._pub.msg_type)
-        self._pub.publish(adaptation_to_msg(out, res.adaptation))
+        self._pub.publish(self._out.fill(est, res.adaptation, msg.header))
 
     def _skip(self, kind: str, why: str, count: int = 1) -> None:
         self._skipped[kind] = self._skipped.get(kind, 0) + count
@@ -175,7 +175,6 @@ class EstimatorNode(Node):
                                       "/diagnostics)")
 
     def _on_set_parameters(self, params) -> SetParametersResult:
-
         # Validated against the complete current set (required keys included).
         new_params, reason = apply_model_changes(self._params, params)
         if reason:
