@@ -1,5 +1,9 @@
 """The ``estimator`` node: RigState in, ClutchEstimate out, one per accepted sample.
 
+``estimator.publish_every`` N > 1 publishes only every Nth accepted estimate (the first, the
+N+1th, ...) for consumers that need less; the model still runs on every sample. Bags and
+the regression want every sample: leave it at 1 for them.
+
 Runs the model core's :class:`clutch_ros.model.ClutchEstimator` (lamella pack + spline-friction
 law) on every ``rig_state`` sample, using the message stamps for time (never wall time), so a
 bag replayed at any speed gives the same estimates. Samples that are NaN/inf, out of order,
@@ -60,6 +64,9 @@ PARAMS = [
               "best effort); samples lost anyway are counted; read-only: a DDS reader's "
               "history depth is fixed when the subscription is created", "messages", 1, 100000,
               read_only=True),
+    ParamSpec("estimator.publish_every", 1, "publish every Nth accepted estimate (the first, "
+              "the N+1th, ...); the model still runs on every sample; bags and regression "
+              "use 1", "samples", 1, 100000),
     ParamSpec("estimator.max_gap", 1.0, "a gap between samples longer than this re-initialises "
               "the pack to equilibrium", "s", 0.001, 3600.0),
     HARDWARE_ID_PARAM,
@@ -119,6 +126,8 @@ class EstimatorNode(Node):
         self._warn = LogThrottle(5.0)
         self._pub = self.create_publisher(_msg_type(), "clutch_estimate", reliable_qos())
         self._out = EstimateMessage(self._pub.msg_type)
+        self._published = 0
+        self._until_publish = 0  # accepted estimates to skip before the next publish
         # The node clock's C handle: its get_now() is the node's time (ROS time, /clock with
         # use_sim_time) without a rclpy Time object per sample.
         self._clock_handle = self.get_clock().handle
@@ -165,7 +174,12 @@ class EstimatorNode(Node):
             self._skip("non_finite_output", "model produced a non-finite torque")
             return
         self._accepted += 1
+        if self._until_publish:  # decimated (estimator.publish_every): not this one
+            self._until_publish -= 1
+            return
+        self._until_publish = self._cfg["estimator.publish_every"] - 1
         self._pub.publish(self._out.fill(est, res.adaptation, msg.header))
+        self._published += 1
 
     def _skip(self, kind: str, why: str, count: int = 1) -> None:
         self._skipped[kind] = self._skipped.get(kind, 0) + count
@@ -175,6 +189,11 @@ class EstimatorNode(Node):
                                       "/diagnostics)")
 
     def _on_set_parameters(self, params) -> SetParametersResult:
+        own = {p.name: p.value for p in params if p.name.startswith("estimator.")}
+        every = own.get("estimator.publish_every", 1)
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            return SetParametersResult(successful=False, reason="estimator.publish_every "
+                                       f"must be an integer >= 1, got {every!r}")
         # Validated against the complete current set (required keys included).
         new_params, reason = apply_model_changes(self._params, params)
         if reason:
@@ -200,8 +219,8 @@ class EstimatorNode(Node):
             self._params = new_params
         if settings is not None:
             self._estimator.set_settings(settings)
-        own = {p.name: p.value for p in params if p.name.startswith("estimator.")}
         self._cfg.update(own)
+        self._until_publish = min(self._until_publish, self._cfg["estimator.publish_every"] - 1)
         self._cfg.update(adapt)
         if "estimator.max_gap" in own:
             self._estimator.estimator.max_gap_s = own["estimator.max_gap"]
@@ -213,7 +232,8 @@ class EstimatorNode(Node):
         now = self.get_clock().now().nanoseconds * 1e-9
         rate = float(self._accepted - self._accepted_at_last_diag)
         self._accepted_at_last_diag = self._accepted
-        values = {"accepted": self._accepted, "input_rate_hz": rate,
+        values = {"accepted": self._accepted, "published": self._published,
+                  "publish_every": self._cfg["estimator.publish_every"], "input_rate_hz": rate,
                   "spline_law": self._params.spline.law, "last_error": self._last_error}
         values.update({f"skipped_{k}": v for k, v in self._skipped.items()})
         values.update(self._peers.ages(now))
