@@ -1,5 +1,9 @@
 """The ``estimator`` node: RigState in, ClutchEstimate out, one per accepted sample.
 
+``estimator.publish_every`` N > 1 publishes only every Nth accepted estimate (the first, the
+N+1th, ...) for consumers that need less; the model still runs on every sample. Bags and
+the regression want every sample: leave it at 1 for them.
+
 Runs the model core's :class:`clutch_ros.model.ClutchEstimator` (lamella pack + spline-friction
 law) on every ``rig_state`` sample, using the message stamps for time (never wall time), so a
 bag replayed at any speed gives the same estimates. Samples that are NaN/inf, out of order,
@@ -34,8 +38,9 @@ from clutch_ros.config.params_file import load_flat
 from clutch_ros.config.presets import default_preset
 from clutch_ros.errors import ClutchError
 from clutch_ros.model import SampleRejected
-from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimator
-from clutch_ros.nodes.convert import adaptation_to_msg, estimate_to_msg
+from clutch_ros.model.adaptation import AdaptiveEstimator
+from clutch_ros.nodes.adapt_params import ADAPT_PARAMS, adapt_settings
+from clutch_ros.nodes.convert import EstimateMessage
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.loss_tracker import LossTracker
 from clutch_ros.nodes.model_params import (
@@ -51,6 +56,7 @@ from clutch_ros.nodes.stamps import stamp_to_sec
 from clutch_ros.offline.adapt import save_adapted_params
 
 NAME = "estimator"
+DRAIN_MAX = 50  # queued rig_state samples taken per callback, beyond the one it was called for
 PARAMS = [
     ParamSpec("estimator.max_sample_age", 0.5, "skip samples whose stamp is older than this "
               "relative to the node clock; 0 disables the check", "s", 0.0, 3600.0),
@@ -60,40 +66,12 @@ PARAMS = [
               "best effort); samples lost anyway are counted; read-only: a DDS reader's "
               "history depth is fixed when the subscription is created", "messages", 1, 100000,
               read_only=True),
+    ParamSpec("estimator.publish_every", 1, "publish every Nth accepted estimate (the first, "
+              "the N+1th, ...); the model still runs on every sample; bags and regression "
+              "use 1", "samples", 1, 100000),
     ParamSpec("estimator.max_gap", 1.0, "a gap between samples longer than this re-initialises "
               "the pack to equilibrium", "s", 0.001, 3600.0),
     HARDWARE_ID_PARAM,
-]
-_A = AdaptationSettings()
-ADAPT_PARAMS = [
-    ParamSpec("adapt.enabled", True, "adapt the friction scale (a multiplier of mu) online "
-              "while a plausible torque measurement is present (has_measured_torque)"),
-    ParamSpec("adapt.forgetting_time", _A.forgetting_time, "memory of the adaptation, in "
-              "adaptation time", "s", 0.1, 1e5),
-    ParamSpec("adapt.scale_min", _A.scale_min, "lower bound of the friction scale", "1",
-              0.05, 1.0),
-    ParamSpec("adapt.scale_max", _A.scale_max, "upper bound of the friction scale", "1",
-              1.0, 20.0),
-    ParamSpec("adapt.min_torque", _A.min_torque, "adapt only above this |modelled torque|",
-              "N m", 0.0, 1e5),
-    ParamSpec("adapt.min_slip", _A.min_slip, "adapt only above this |filtered slip speed|",
-              "rad/s", 0.0, 100.0),
-    ParamSpec("adapt.max_torque_rate", _A.max_torque_rate, "the friction scale adapts only "
-              "while |d modelled torque/dt| stays below this (quasi-steady) ...", "N m/s",
-              1.0, 1e7),
-    ParamSpec("adapt.settle_time", _A.settle_time, "... for at least this long", "s",
-              0.0, 60.0),
-    ParamSpec("adapt.recover_time", _A.recover_time, "plausible measurements needed after a "
-              "dropout or an implausible value before adapting again", "s", 0.0, 3600.0),
-    ParamSpec("adapt.dropout_grace", _A.dropout_grace, "a torque measurement missing for up "
-              "to this long only pauses adaptation (a late frame); longer freezes it with a "
-              "diagnostic", "s", 0.0, 60.0),
-    ParamSpec("adapt.measurement_std", _A.measurement_std, "standard deviation of the torque "
-              "error assumed by the estimator (absolute part)", "N m", 1e-3, 1e5),
-    ParamSpec("adapt.spline_gain", False, "also adapt spline.gain (ff_t and ff_v laws only; "
-              "identified from the transients)"),
-    ParamSpec("adapt.save_params_file", "", "set to a file path to write the adapted "
-              "parameters there now (a complete parameter file)"),
 ]
 
 
@@ -106,7 +84,7 @@ class EstimatorNode(Node):
         self._cfg = declare_params(self, PARAMS)
         self._params = declare_model_params(self, default_preset("flexiforce_8"))
         self._cfg.update(declare_params(self, ADAPT_PARAMS))
-        self._estimator = AdaptiveEstimator(self._params, _adapt_settings(self._cfg),
+        self._estimator = AdaptiveEstimator(self._params, adapt_settings(self._cfg),
                                             max_gap_s=self._cfg["estimator.max_gap"])
         self._saved = ""
         self._skipped: dict[str, int] = {}
@@ -118,22 +96,42 @@ class EstimatorNode(Node):
         self._last_error = ""
         self._warn = LogThrottle(5.0)
         self._pub = self.create_publisher(_msg_type(), "clutch_estimate", reliable_qos())
+        self._out = EstimateMessage(self._pub.msg_type)
+        self._published = 0
+        self._until_publish = 0  # accepted estimates to skip before the next publish
+        # The node clock's C handle: its get_now() is the node's time (ROS time, /clock with
+        # use_sim_time) without a rclpy Time object per sample.
+        self._clock_handle = self.get_clock().handle
         # Sensor-data QoS (best effort) as the bridge offers it, with a deep queue so a
         # stall of the estimator does not overwrite samples; samples lost anyway are counted
         # exactly from the DDS publication sequence numbers.
-
-
         self._loss = LossTracker()
         self._loss.add_topic("rig_state")
-        self.create_subscription(_rig_state_type(), "rig_state", self._on_rig_state,
-                                 QoSProfile(depth=self._cfg["estimator.queue_depth"],
-                                            reliability=ReliabilityPolicy.BEST_EFFORT))
+        self._sub = self.create_subscription(_rig_state_type(), "rig_state", self._on_rig_state,
+                                             QoSProfile(depth=self._cfg["estimator.queue_depth"],
+                                                        reliability=ReliabilityPolicy.BEST_EFFORT))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
         self.get_logger().info(f"estimating with spline law '{self._params.spline.law}', "
                                f"{self._params.pack.lamella_count} lamellas")
 
     def _on_rig_state(self, msg, info) -> None:
+        """Estimate ``msg``, then the samples queued behind it (at most ``DRAIN_MAX``).
+
+        Taking the queued samples here, as rclpy's executor would (``take_message`` on the
+        subscription handle), skips one executor iteration per sample, which costs more than
+        the estimate; the bound lets timers and parameter services run during a flood.
+        """
+        self._on_sample(msg, info)
+        handle, msg_type = self._sub.handle, self._sub.msg_type
+        with handle:
+            for _ in range(DRAIN_MAX):
+                taken = handle.take_message(msg_type, False)
+                if taken is None:
+                    return
+                self._on_sample(*taken)
+
+    def _on_sample(self, msg, info) -> None:
         lost = self._loss.received("rig_state", info)
         if lost:
             self._skip("lost_in_transport", f"{lost} rig_state samples lost before this one",
@@ -144,8 +142,7 @@ class EstimatorNode(Node):
             self._skip("internal_error", f"{type(err).__name__}: {err}")
 
     def _estimate(self, msg) -> None:
-
-        now = self.get_clock().now().nanoseconds * 1e-9
+        now = self._clock_handle.get_now().nanoseconds * 1e-9  # [s] node clock
         self._peers.seen("rig data", now)
         stamp = stamp_to_sec(msg.header.stamp)
         max_age = self._cfg["estimator.max_sample_age"]
@@ -164,8 +161,12 @@ class EstimatorNode(Node):
             self._skip("non_finite_output", "model produced a non-finite torque")
             return
         self._accepted += 1
-        out = estimate_to_msg(est, msg.header, self._pub.msg_type)
-        self._pub.publish(adaptation_to_msg(out, res.adaptation))
+        if self._until_publish:  # decimated (estimator.publish_every): not this one
+            self._until_publish -= 1
+            return
+        self._until_publish = self._cfg["estimator.publish_every"] - 1
+        self._pub.publish(self._out.fill(est, res.adaptation, msg.header))
+        self._published += 1
 
     def _skip(self, kind: str, why: str, count: int = 1) -> None:
         self._skipped[kind] = self._skipped.get(kind, 0) + count
@@ -175,7 +176,11 @@ class EstimatorNode(Node):
                                       "/diagnostics)")
 
     def _on_set_parameters(self, params) -> SetParametersResult:
-
+        own = {p.name: p.value for p in params if p.name.startswith("estimator.")}
+        every = own.get("estimator.publish_every", 1)
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            return SetParametersResult(successful=False, reason="estimator.publish_every "
+                                       f"must be an integer >= 1, got {every!r}")
         # Validated against the complete current set (required keys included).
         new_params, reason = apply_model_changes(self._params, params)
         if reason:
@@ -184,7 +189,7 @@ class EstimatorNode(Node):
         settings = None
         if set(adapt) - {"adapt.save_params_file"}:
             try:
-                settings = _adapt_settings({**self._cfg, **adapt})
+                settings = adapt_settings({**self._cfg, **adapt})
             except ClutchError as err:
                 return SetParametersResult(successful=False, reason=str(err))
         target = adapt.get("adapt.save_params_file", "")
@@ -201,8 +206,8 @@ class EstimatorNode(Node):
             self._params = new_params
         if settings is not None:
             self._estimator.set_settings(settings)
-        own = {p.name: p.value for p in params if p.name.startswith("estimator.")}
         self._cfg.update(own)
+        self._until_publish = min(self._until_publish, self._cfg["estimator.publish_every"] - 1)
         self._cfg.update(adapt)
         if "estimator.max_gap" in own:
             self._estimator.estimator.max_gap_s = own["estimator.max_gap"]
@@ -214,7 +219,8 @@ class EstimatorNode(Node):
         now = self.get_clock().now().nanoseconds * 1e-9
         rate = float(self._accepted - self._accepted_at_last_diag)
         self._accepted_at_last_diag = self._accepted
-        values = {"accepted": self._accepted, "input_rate_hz": rate,
+        values = {"accepted": self._accepted, "published": self._published,
+                  "publish_every": self._cfg["estimator.publish_every"], "input_rate_hz": rate,
                   "spline_law": self._params.spline.law, "last_error": self._last_error}
         values.update({f"skipped_{k}": v for k, v in self._skipped.items()})
         values.update(self._peers.ages(now))
@@ -249,18 +255,6 @@ def main(args=None) -> int:
     """Console entry point: ``ros2 run clutch_ros estimator``."""
     return run_node(NAME, __doc__, PARAMS + ADAPT_PARAMS + _model_specs_for_help(),
                     EstimatorNode, args)
-
-
-def _adapt_settings(cfg: dict) -> AdaptationSettings:
-    """Return the AdaptationSettings of the ``adapt.*`` values of ``cfg`` (may raise)."""
-    return AdaptationSettings(
-        enabled=bool(cfg["adapt.enabled"]), forgetting_time=cfg["adapt.forgetting_time"],
-        scale_min=cfg["adapt.scale_min"], scale_max=cfg["adapt.scale_max"],
-        min_torque=cfg["adapt.min_torque"], min_slip=cfg["adapt.min_slip"],
-        max_torque_rate=cfg["adapt.max_torque_rate"], settle_time=cfg["adapt.settle_time"],
-        recover_time=cfg["adapt.recover_time"], dropout_grace=cfg["adapt.dropout_grace"],
-        measurement_std=cfg["adapt.measurement_std"],
-        spline_gain=bool(cfg["adapt.spline_gain"]))
 
 
 def _model_specs_for_help():
