@@ -135,10 +135,14 @@ def _compiled():
     jit = numba.njit(cache=True, nogil=True)
     g = globals()
     g["_lowpass"] = jit(g["_lowpass"])
+    # the per-step box functions are inlined at numba IR level (each call passes a dozen
+    # arrays: ~30 % of an ff_t step otherwise); the rare solvers stay calls
+    inline = numba.njit(cache=True, nogil=True, inline="always")
     for name in kernel_box.BOX_FUNCTIONS:  # compiled where they live (their globals)
         func = getattr(kernel_box, name)
         if not hasattr(func, "py_func"):
-            setattr(kernel_box, name, jit(func))
+            rare = name in ("_lu_solve", "_gauss_seidel")
+            setattr(kernel_box, name, (jit if rare else inline)(func))
     g["_box_apply"], g["_mat_vec"] = kernel_box._box_apply, kernel_box.mat_vec
     for name in ("_mu", "_film_step", "_thermal_step", "_sign", "_emit", "_loop"):
         func = g[name]  # helpers first: later functions call the compiled ones
