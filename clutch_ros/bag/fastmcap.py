@@ -191,19 +191,40 @@ def _same_size_run(buf: np.ndarray, pos: int, stride: int, end: int) -> np.ndarr
     count = (end - pos) // stride
     if count < _MIN_RUN:
         return None
-    at = pos + stride * np.arange(count, dtype=np.int64)
-    same = (buf[at] == _OP_MESSAGE) & (_field(buf, at + 1, "<u8") == stride - 9)
+    rows = _rows(buf, pos, stride, count)
+    same = (rows[:, 0] == _OP_MESSAGE) & (_column(rows, 1, "<u8") == stride - 9)
     if not same.all():
         count = int(np.argmin(same))  # same[0] is true: count >= 1
         if count < _MIN_RUN:
             return None
-        at = at[:count]
-    return at
+    return pos + stride * np.arange(count, dtype=np.int64)
+
+
+def _rows(buf: np.ndarray, pos: int, stride: int, count: int) -> np.ndarray:
+    """``count`` records of ``stride`` bytes from ``pos`` as a strided (count, stride) view."""
+    return np.lib.stride_tricks.as_strided(buf[pos:], shape=(count, stride),
+                                           strides=(stride, 1), writeable=False)
+
+
+def _column(rows: np.ndarray, offset: int, dtype: str) -> np.ndarray:
+    """Field ``dtype`` at byte ``offset`` of every row of a strided record view (a copy)."""
+    width = np.dtype(dtype).itemsize
+    return np.ascontiguousarray(rows[:, offset : offset + width]).view(dtype).reshape(-1)
 
 
 def _field(buf: np.ndarray, pos: np.ndarray, dtype: str) -> np.ndarray:
-    """Read one little-endian field of type ``dtype`` at each position of ``pos`` in ``buf``."""
+    """Read one little-endian field of type ``dtype`` at each position of ``pos`` in ``buf``.
+
+    Equally spaced positions (a run of equal records) are read through a strided view, one
+    copy; others by a gather.
+    """
     width = np.dtype(dtype).itemsize
+    count = len(pos)
+    if count > 1:
+        stride = int(pos[1] - pos[0])
+        if stride >= width and int(pos[-1] - pos[0]) == stride * (count - 1) and \
+                (count == 2 or (np.diff(pos) == stride).all()):
+            return _column(_rows(buf, int(pos[0]), stride, count), 0, dtype)
     return buf[pos[:, None] + np.arange(width)].view(dtype).reshape(-1)
 
 

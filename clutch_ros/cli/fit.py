@@ -82,7 +82,8 @@ def add_parser(sub) -> None:
     p.add_argument("--fit-rate", type=float, default=None, metavar="HZ",
                    help="decimated rate of the fit (default 100 Hz)")
     p.add_argument("--max-samples", type=int, default=None, metavar="N",
-                   help="segment budget per residual evaluation (default per law: "
+                   help="segment budget per residual evaluation; 0: every sample at the "
+                        "fit rate (default per law: "
                         + ", ".join(f"{k} {v}" for k, v in SAMPLE_BUDGET.items()) + ")")
     p.add_argument("--max-seconds", type=float, default=45.0, metavar="S",
                    help="stop the solver at its best point after about S seconds (default "
@@ -98,8 +99,10 @@ def run(args) -> int:
         raise ClutchError(f"--pdiff-weight must be >= 0, got {args.pdiff_weight}")
     if args.fit_rate is not None and not args.fit_rate > 0.0:
         raise ClutchError(f"--fit-rate must be > 0 Hz, got {args.fit_rate}")
-    if args.max_samples is not None and args.max_samples < 100:
-        raise ClutchError(f"--max-samples must be >= 100, got {args.max_samples}")
+    if args.max_samples is not None and 0 < args.max_samples < 100 or \
+            args.max_samples is not None and args.max_samples < 0:
+        raise ClutchError(f"--max-samples must be 0 (every sample) or >= 100, got "
+                          f"{args.max_samples}")
     base = load_params(preset_path(args.base))
     out = Path(args.output)
     if out.is_dir():

@@ -31,6 +31,7 @@ from clutch_ros.cli.replay_adapt import AdaptiveRun, add_adapt_options, print_ad
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
+from clutch_ros.model import kernel
 from clutch_ros.model.params import SPLINE_LAWS
 from clutch_ros.offline.batch import run_jobs
 from clutch_ros.offline.replay import ReplayJob
@@ -123,6 +124,8 @@ def run(args) -> int:
     elif args.jobs == 1 and not args.cluster:
         done = (job(item) for item in items)
     else:
+        if not args.cluster:  # load numba and the compiled loop once, before the workers fork
+            kernel.available()
         done = iter(run_jobs(job, items, jobs=args.jobs, cluster=args.cluster))
     for (bag, recovery, spent), (summary, result) in zip(recoveries, done):
         if recovery is not None:

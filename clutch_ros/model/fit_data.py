@@ -159,7 +159,7 @@ class FitOptions:
     Attributes:
         fit_rate_hz: decimated rate of the fit [Hz] (capped by the pack time constant / 10)
         max_samples: decimated samples simulated per residual evaluation (segment budget);
-            None: :data:`SAMPLE_BUDGET` of the law (coulomb steps cost ~20x the others)
+            None: :data:`SAMPLE_BUDGET` of the law; 0: every sample (no budget)
         max_segment_s: longest segment when segmenting [s]
         warmup_s: simulated-but-unfitted prefix of a segment [s]
         rest_fraction: a rest is pressure below this fraction of the run's maximum

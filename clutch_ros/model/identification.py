@@ -47,17 +47,10 @@ same Jacobian, with its columns normalised, must have full rank: a singular valu
 ``rank_tol`` of the largest raises :class:`UnidentifiableParameterError` naming the
 parameters of the null direction.
 
-Refusals (:class:`IdentificationError` and subclasses) and the data preparation (decimation,
-segments within :data:`SAMPLE_BUDGET`) are in :mod:`~clutch_ros.model.fit_data`, whose public
-names are re-exported here.
-
-Speed (a one-hour 1 kHz run fits in well under a minute, ``python -m
-benchmarks.model_fit``): each residual evaluation simulates at most ``max_samples``
-decimated samples (≈ 0.06 s; with the coulomb law 0.2–1 s, its stick/slip steps cost
-50–250 µs each, most while plates slide); a fit takes 5–15 least-squares iterations of
-n + 1 evaluations (forward differences; the final Jacobian is re-done with central
-differences only when it looks near-singular). A wall-time guard (``max_seconds``, 45 s)
-ends a fit that would still run longer with its best point, flagged not converged.
+Refusals and data preparation (decimation, :data:`SAMPLE_BUDGET`): :mod:`~.fit_data`.
+Speed (``python -m benchmarks.model_fit``): an evaluation simulates ``max_samples`` samples
+(0: all) in the kernel's output-only loop (``simulate_columns``, ~0.5 µs each); 5–15
+iterations of n + 1 evaluations; ``max_seconds`` (45 s) ends a fit early, not converged.
 """
 
 from __future__ import annotations
@@ -69,6 +62,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from clutch_ros.model import kernel
 from clutch_ros.model.estimator import estimate_batch
 from clutch_ros.model.fit_data import (
     SAMPLE_BUDGET,
@@ -91,7 +85,7 @@ from clutch_ros.model.friction import reference_torque
 from clutch_ros.model.metrics import rmse
 from clutch_ros.model.pack import PackModel
 from clutch_ros.model.params import PARAMETER_SPECS, SPLINE_LAWS, TABLE7, ClutchParams
-from clutch_ros.model.simulate import simulate
+from clutch_ros.model.simulate import simulate, simulate_columns
 
 __all__ = [
     # errors and inputs (defined in clutch_ros.model.fit_data)
@@ -298,9 +292,13 @@ class _Problem:
         model = PackModel(params)
         out = []
         for s in self.segments:
-            sim = simulate(params, s.t, s.p, s.omega, s.temp, model=model)
-            out.append(tuple(model_block_means(y, s.w) for y in
-                             (sim.torque, sim.front_pressure, sim.rear_pressure)))
+            cols = np.empty((len(kernel.OUTPUT_COLUMNS), len(s)))
+            if simulate_columns(params, s.t, s.p, s.omega, s.temp, cols, model=model):
+                ys = (cols[0], cols[3], cols[4])  # torque, front and rear pressure
+            else:
+                sim = simulate(params, s.t, s.p, s.omega, s.temp, model=model)
+                ys = (sim.torque, sim.front_pressure, sim.rear_pressure)
+            out.append(tuple(model_block_means(y, s.w) for y in ys))
         return out
 
     def residuals_parts(self, params):
@@ -375,7 +373,8 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
     check_data(segments, keys, opts, runs)
     fit_dt = float(np.median(np.concatenate([np.diff(s.t) for s in segments if len(s) > 1])))
     budget = opts.max_samples if opts.max_samples is not None else SAMPLE_BUDGET[law]
-    segments = select_segments(segments, opts, int(budget))
+    if budget:  # 0: every sample
+        segments = select_segments(segments, opts, int(budget))
     if "friction.mu_ref" in keys:
         params0 = _scale_mu(params0, segments)
     problem = _Problem(params0, keys, segments, opts)

@@ -14,14 +14,23 @@ model's discretisation cache), then the oil film and thermal states with the inp
 - ``ff_v_printed``: ``F_fn = κ T w_n`` held;
 - ``coulomb``, ``ff_t``, ``ff_v`` (passive): the H-norm projection of the all-stuck force
   onto the law's box (see :mod:`clutch_ros.model.spline_passive`), found by the same
-  warm-started active-set iteration with projected Gauss-Seidel as fallback. The solution of
-  the box problem is unique, so the compiled and the numpy solver agree to rounding (the
-  products are summed in a different order; tests/model/test_kernel.py states the tolerances
-  it checks).
+  warm-started active-set iteration with projected Gauss-Seidel as fallback
+  (:mod:`clutch_ros.model.kernel_box`). The solution of the box problem is unique, so the
+  compiled and the numpy solver agree to rounding (the products are summed in a different
+  order, the stuck subsystem is solved by an in-place elimination instead of LAPACK;
+  tests/model/test_kernel.py states the tolerances it checks).
+
+Speed: nothing is allocated per sample (scratch arrays once per series); the ZOH matrices
+(and the box laws' stick and normal matrices) are passed transposed, so ``x = M w`` runs
+column by column over contiguous rows (vectorised by LLVM, each element still summed in the
+order of the reference); no fastmath. :func:`run_columns` computes the outputs of every
+sample inside the loop and keeps no state history (the estimator's batch path and the fit);
+:func:`run_loop` records the states as :func:`~clutch_ros.model.simulate.simulate` needs.
 
 Compiled code is cached on disk (``cache=True``) in ``NUMBA_CACHE_DIR`` (default: a
-``numba`` folder in the user cache dir, ``$XDG_CACHE_HOME`` or ``~/.cache``, under
-``clutch_ros``), so only the first call after install pays the few seconds of compilation.
+``numba/<digest of kernel_box.py>`` folder in the user cache dir, ``$XDG_CACHE_HOME`` or
+``~/.cache``, under ``clutch_ros``), so only the first call after install pays the few
+seconds of compilation.
 
 Fallback, never silent: with ``engine="auto"``, if numba cannot be imported, compilation
 fails, or ``CLUTCH_KERNEL=0`` is set, the numpy path runs, the reason is logged (a warning,
@@ -31,6 +40,7 @@ once per process; info for the explicit switch) and kept in :func:`unavailable_r
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import os
@@ -38,24 +48,31 @@ from pathlib import Path
 
 import numpy as np
 
+from clutch_ros.model import kernel_box
 from clutch_ros.model.errors import InputError, ModelError
 from clutch_ros.model.slip import lowpass_series as _lowpass_numpy
 
-__all__ = ["ENGINES", "KernelUnavailableError", "LAW_CODES", "available", "check_engine",
-           "lowpass_series", "run_loop", "unavailable_reason"]
+__all__ = ["ENGINES", "KernelUnavailableError", "LAW_CODES", "OUTPUT_COLUMNS", "available",
+           "check_engine", "lowpass_series", "run_columns", "run_loop", "unavailable_reason"]
 
 _log = logging.getLogger(__name__)
+
+#: rows of :func:`run_columns`' output array: torque and Eq. 1 reference [N m], μ [-],
+#: front and rear pressure [Pa], compression z_N [m], temperature [°C], film [-], spline
+#: correction [Pa]
+OUTPUT_COLUMNS = ("torque", "reference_torque", "mu", "front_pressure", "rear_pressure",
+                  "compression", "lamella_temperature", "film", "spline_correction")
 
 #: accepted values of simulate()'s ``engine`` argument
 ENGINES = ("auto", "kernel", "numpy")
 
 _NONE, _LINEAR, _VISCOUS, _BOX = 0, 1, 2, 3
-_COULOMB, _FF_T, _FF_V = 0, 1, 2
+_COULOMB, _FF_T, _FF_V = kernel_box.COULOMB, kernel_box.FF_T, kernel_box.FF_V
+# replaced by the compiled functions in _compiled()
+_box_apply, _mat_vec = kernel_box._box_apply, kernel_box.mat_vec
 #: law name -> (kind, box variant) of the compiled loop
 LAW_CODES = {"none": (_NONE, 0), "ff_t_printed": (_LINEAR, 0), "ff_v_printed": (_VISCOUS, 0),
              "coulomb": (_BOX, _COULOMB), "ff_t": (_BOX, _FF_T), "ff_v": (_BOX, _FF_V)}
-_MAX_ACTIVE_SET_ITERATIONS = 64
-_MAX_GAUSS_SEIDEL_SWEEPS = 10000
 
 #: loop: the compiled loop once numba is imported; reason: why the kernel cannot be used
 _state: dict = {"loop": None, "reason": None, "numba_error": None}
@@ -66,8 +83,14 @@ class KernelUnavailableError(ModelError):
 
 
 def _cache_dir() -> str:
+    """Default cache folder, one per version of kernel_box.py.
+
+    numba checks a cached function against its own file only: a change in kernel_box.py alone
+    would leave the cached loop of this file calling the old box code.
+    """
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return str(Path(base) / "clutch_ros" / "numba")
+    digest = hashlib.sha1(Path(kernel_box.__file__).read_bytes()).hexdigest()[:12]
+    return str(Path(base) / "clutch_ros" / "numba" / digest)
 
 
 def check_engine(engine: str) -> str:
@@ -112,8 +135,16 @@ def _compiled():
     jit = numba.njit(cache=True, nogil=True)
     g = globals()
     g["_lowpass"] = jit(g["_lowpass"])
-    for name in ("_mu", "_film_step", "_thermal_step", "_box_forces", "_violations",
-                 "_gauss_seidel", "_box_solve", "_box_apply", "_loop"):
+    # the per-step box functions are inlined at numba IR level (each call passes a dozen
+    # arrays: ~30 % of an ff_t step otherwise); the rare solvers stay calls
+    inline = numba.njit(cache=True, nogil=True, inline="always")
+    for name in kernel_box.BOX_FUNCTIONS:  # compiled where they live (their globals)
+        func = getattr(kernel_box, name)
+        if not hasattr(func, "py_func"):
+            rare = name in ("_lu_solve", "_gauss_seidel")
+            setattr(kernel_box, name, (jit if rare else inline)(func))
+    g["_box_apply"], g["_mat_vec"] = kernel_box._box_apply, kernel_box.mat_vec
+    for name in ("_mu", "_film_step", "_thermal_step", "_sign", "_emit", "_loop"):
         func = g[name]  # helpers first: later functions call the compiled ones
         g[name] = func if hasattr(func, "py_func") else jit(func)
     _state["loop"] = g["_loop"]
@@ -156,168 +187,66 @@ def _thermal_step(th, temperature, dt, power):
     return target + (temperature - target) * math.exp(-dt * g / th[0])
 
 
-def _box_forces(g, f_stick, lo, hi, stuck, sigma, f):
-    """Write the forces of one active set: sliding at hi (σ > 0) or lo, stuck ones solved."""
-    n = f.size
-    n_st = 0
-    for i in range(n):
-        f[i] = hi[i] if sigma[i] > 0.0 else lo[i]
-        if stuck[i]:
-            n_st += 1
-    if n_st == 0:
-        return
-    if n_st == n:
-        f[:] = f_stick
-        return
-    st = np.empty(n_st, dtype=np.int64)
-    sl = np.empty(n - n_st, dtype=np.int64)
-    a = b = 0
-    for i in range(n):
-        if stuck[i]:
-            st[a] = i
-            a += 1
-        else:
-            sl[b] = i
-            b += 1
-    gss = np.empty((n_st, n_st))
-    rhs = np.zeros(n_st)
-    for r in range(n_st):
-        for c in range(n_st):
-            gss[r, c] = g[st[r], st[c]]
-        acc = 0.0
-        for c in range(n - n_st):
-            acc += g[st[r], sl[c]] * (f[sl[c]] - f_stick[sl[c]])
-        rhs[r] = acc
-    x = np.linalg.solve(gss, rhs)
-    for r in range(n_st):
-        f[st[r]] = f_stick[st[r]] - x[r]
+def _sign(omega, sign_speed):
+    """:func:`clutch_ros.model.friction.sign_factor` of one sample."""
+    x = omega / sign_speed
+    if x >= 1.0:
+        return 1.0
+    if x <= -1.0:
+        return -1.0
+    return 0.5 * x * (3.0 - x * x)
 
 
-def _violations(g, f_stick, f, lo, hi, stuck, sigma, bad_stuck, bad_slide):
-    """Mark the set's violated conditions; return True if any."""
-    n = f.size
-    dz = np.zeros(n)
-    fmax = 0.0
-    wmax = 0.0
-    zmax = 0.0
-    for i in range(n):
-        acc = 0.0
-        for j in range(n):
-            acc += g[i, j] * (f[j] - f_stick[j])
-        dz[i] = acc
-        fmax = max(fmax, abs(f_stick[i]))
-        wmax = max(wmax, hi[i] - lo[i])
-        zmax = max(zmax, abs(acc))
-    tol_f = 1e-12 * (fmax + wmax + 1.0)
-    tol_z = 1e-12 * (zmax + 1e-15)
-    anybad = False
-    for i in range(n):
-        bad_stuck[i] = stuck[i] and (f[i] > hi[i] + tol_f or f[i] < lo[i] - tol_f)
-        bad_slide[i] = (not stuck[i]) and hi[i] > lo[i] and sigma[i] * dz[i] < -tol_z
-        anybad = anybad or bad_stuck[i] or bad_slide[i]
-    return anybad
+def _emit(k, o, work, fr, consts, idx, press, omega, sg, temp_k, film_k, outs, normal, forces):
+    """Write the outputs of sample ``k`` into column ``o`` of ``outs`` (:data:`OUTPUT_COLUMNS`).
 
-
-def _gauss_seidel(h, f_stick, lo, hi, f):
-    """Projected Gauss-Seidel on the box QP (converges for any SPD H)."""
-    n = f.size
-    fmax = 0.0
-    for i in range(n):
-        f[i] = min(max(f_stick[i], lo[i]), hi[i])
-        fmax = max(fmax, abs(f_stick[i]))
-    tol = 1e-13 * (fmax + 1.0)
-    for _ in range(_MAX_GAUSS_SEIDEL_SWEEPS):
-        change = 0.0
-        for i in range(n):
-            grad = 0.0
-            for j in range(n):
-                grad += h[i, j] * (f[j] - f_stick[j])
-            new = min(max(f[i] - grad / h[i, i], lo[i]), hi[i])
-            change = max(change, abs(new - f[i]))
-            f[i] = new
-        if change <= tol:
-            break
-
-
-def _box_solve(g, h, f_stick, lo, hi, stuck, sigma, f):
-    """Projection onto the box from the warm set (updated in place); forces into ``f``."""
-    n = f.size
-    bad_stuck = np.zeros(n, dtype=np.bool_)
-    bad_slide = np.zeros(n, dtype=np.bool_)
-    for _ in range(_MAX_ACTIVE_SET_ITERATIONS):
-        _box_forces(g, f_stick, lo, hi, stuck, sigma, f)
-        if not _violations(g, f_stick, f, lo, hi, stuck, sigma, bad_stuck, bad_slide):
-            return
-        for i in range(n):
-            if bad_stuck[i]:
-                sigma[i] = 1.0 if f[i] > hi[i] else -1.0
-                stuck[i] = False
-            if bad_slide[i]:
-                stuck[i] = True
-    _gauss_seidel(h, f_stick, lo, hi, f)
-    trial_stuck = np.zeros(n, dtype=np.bool_)
-    trial_sigma = np.ones(n)
-    for i in range(n):
-        width = hi[i] - lo[i]
-        trial_stuck[i] = f[i] > lo[i] + 1e-9 * width and f[i] < hi[i] - 1e-9 * width
-        trial_sigma[i] = 1.0 if f[i] >= hi[i] - 1e-9 * width else -1.0
-    polished = np.empty(n)
-    _box_forces(g, f_stick, lo, hi, trial_stuck, trial_sigma, polished)
-    if not _violations(g, f_stick, polished, lo, hi, trial_stuck, trial_sigma, bad_stuck,
-                       bad_slide):
-        f[:] = polished
-    stuck[:] = trial_stuck
-    sigma[:] = trial_sigma
-
-
-def _box_apply(variant, work, head, s0, f0, nlam, torque, scale, gain, kmat, nmat, g, h,
-               stuck, sigma):
-    """Held spline forces of the box laws (coulomb, passive ff_t / ff_v) into ``work``."""
-    des = np.empty(nlam)
-    anyd = False
+    The same formulas as :func:`clutch_ros.model.simulate.simulate`'s vectorised outputs;
+    ``normal`` (S_n) and ``forces`` (F_fn) row ``o`` too when they have it.
+    """
+    i_front, f0, nlam = idx[1], idx[5], idx[6]
+    area, c2k, k_na, c2n, stiff = consts[0], consts[1], consts[2], consts[8], consts[9]
+    zn = work[i_front]
+    zp = zn if zn > 0.0 else 0.0
+    mu = _mu(fr, temp_k, zp * k_na, omega[k], film_k)
+    mu_ref = _mu(fr, temp_k, press[k], omega[k], 1.0)
+    force = press[k] * area if press[k] > 0.0 else 0.0
+    outs[0, o] = c2k * mu * zp * sg
+    outs[1, o] = c2n * mu_ref * force * sg
+    outs[2, o] = mu
+    front = work[2 * nlam - 2] * stiff
+    if nlam > 1:
+        front -= work[2 * nlam - 4] * stiff
+    outs[3, o] = front / area
+    outs[4, o] = work[0] * stiff / area
+    outs[5, o] = zn
+    outs[6, o] = temp_k
+    outs[7, o] = film_k
+    acc = 0.0
     for i in range(nlam):
-        if variant == _FF_T:
-            des[i] = gain * torque - work[s0]
-        elif variant == _FF_V:
-            des[i] = work[s0 + i] * (gain * torque)
-        else:
-            des[i] = 1.0
-        anyd = anyd or des[i] != 0.0
-    if scale <= 0.0 or not anyd:
+        acc += work[f0 + i] * (i + 1.0)
+    outs[8, o] = acc / (nlam * area)
+    if normal.shape[0] > o:
+        prev = 0.0
         for i in range(nlam):
-            work[f0 + i] = 0.0
-        return
-    normal = np.empty(nlam + 1)
-    for r in range(nlam + 1):
-        acc = 0.0
-        for c in range(head):
-            acc += nmat[r, c] * work[c]
-        normal[r] = acc if acc > 0.0 else 0.0
-    lo = np.empty(nlam)
-    hi = np.empty(nlam)
-    f_stick = np.empty(nlam)
-    for i in range(nlam):
-        bound = (normal[i] + normal[i + 1]) * scale
-        if variant == _COULOMB:
-            lo[i], hi[i] = -bound, bound
-        else:
-            d = des[i]
-            hi[i] = min(max(d, 0.0), bound)
-            lo[i] = max(min(d, 0.0), -bound)
-        acc = 0.0
-        for c in range(head):
-            acc += kmat[i, c] * work[c]
-        f_stick[i] = acc
-    f = np.empty(nlam)
-    _box_solve(g, h, f_stick, lo, hi, stuck, sigma, f)
-    for i in range(nlam):
-        work[f0 + i] = f[i]
+            s = work[2 * i] * stiff
+            normal[o, i] = s - prev
+            prev = s
+    if forces.shape[0] > o:
+        for i in range(nlam):
+            forces[o, i] = work[f0 + i]
 
 
-def _loop(ms, inv, dts, press, omega, temp, sign, work, idx, consts, fr, th, law, variant,
-          kmats, nmats, gmats, hmats, stuck, sigma, states, forces, temps, films, torque_out,
-          record):
-    """Run steps 1..n-1 of simulate() (PackModel._advance per sample); return (film, temp)."""
+def _loop(mts, inv, dts, press, omega, temp, sign, work, idx, consts, fr, th, law, variant,
+          kts, nts, gmats, gts, hmats, stuck, sigma, states, forces, temps, films, torque_out,
+          outs, normal, offset):
+    """Run steps 1..n-1 of simulate() (PackModel._advance per sample); return (film, temp).
+
+    ``mts``: the ZOH matrices transposed (size, n_state) per dt entry. Arrays with fewer rows
+    than samples are not written: ``states``, ``forces`` (n, N), ``temps``, ``films``,
+    ``torque_out`` (n - 1); ``outs`` (9, offset + n), columns ``offset + k`` (sample 0
+    too), and ``normal`` (offset + n, N) rows, ``forces`` too when ``outs`` is written. ``sign``
+    of size 0: the sign is computed here from ``consts[10]`` (sign speed).
+    """
     nx, i_front, i_force, i_torque, s0, f0, nlam, head = (idx[0], idx[1], idx[2], idx[3],
                                                           idx[4], idx[5], idx[6], idx[7])
     area, c2k, k_na, gain, coef, film_on = (consts[0], consts[1], consts[2], consts[3],
@@ -325,16 +254,31 @@ def _loop(ms, inv, dts, press, omega, temp, sign, work, idx, consts, fr, th, law
     film = consts[6]
     cur_temp = consts[7]
     size = work.size
-    x = np.empty(nx)
     n = press.size
+    x = np.empty((1, nx))
+    row = work.reshape(1, size)  # the work vector as a row, for mat_vec
+    fs = np.zeros((kernel_box.SCRATCH_ROWS, nlam + 1))
+    bb = np.zeros((4, nlam), dtype=np.bool_)
+    ib = np.zeros((2, nlam), dtype=np.int64)
+    gss = np.empty((nlam, nlam))
+    for i in range(nlam):  # the warm active set
+        bb[kernel_box.STUCK, i] = stuck[i]
+        fs[kernel_box.SIGMA, i] = sigma[i]
+    has_sign = sign.size == n
+    emit = outs.shape[1] >= offset + n
+    if emit and n > 0:
+        sg = sign[0] if has_sign else _sign(omega[0], consts[10])
+        _emit(0, offset, work, fr, consts, idx, press, omega, sg, cur_temp, film, outs,
+              normal, forces)
     for k in range(1, n):
         j = k - 1
+        sg = sign[k] if has_sign else _sign(omega[k], consts[10])
         t_in = temp[k]
         t_use = t_in if t_in == t_in else cur_temp
         zn = work[i_front]
         p_eq = zn * k_na if zn > 0.0 else 0.0
         mu = _mu(fr, t_use, p_eq, omega[k], film)
-        load = mu * abs(sign[k])
+        load = mu * abs(sg)
         torque = c2k * load * zn if zn > 0.0 else 0.0
         work[i_force] = press[k] * area if press[k] > 0.0 else 0.0
         work[i_torque] = torque
@@ -344,27 +288,33 @@ def _loop(ms, inv, dts, press, omega, temp, sign, work, idx, consts, fr, th, law
             for i in range(nlam):
                 work[f0 + i] = work[s0 + i] * gt
         elif law == _BOX:
-            _box_apply(variant, work, head, s0, f0, nlam, torque, coef * load, gain,
-                       kmats[e], nmats[e], gmats[e], hmats[e], stuck, sigma)
-        m = ms[e]
+            _box_apply(variant, row, head, s0, f0, nlam, torque, coef * load, gain,
+                       kts, nts, gmats, gts, hmats, e, fs, bb, ib, gss)
+        _mat_vec(mts, e, row, 0, size, nx, x, 0)  # x = M w
         for r in range(nx):
-            acc = 0.0
-            for c in range(size):
-                acc += m[r, c] * work[c]
-            x[r] = acc
-        work[:nx] = x
+            work[r] = x[0, r]
         if film_on > 0.0:
             film = _film_step(fr, film, dts[j], p_eq, omega[k])
         if t_in == t_in:
             cur_temp = t_in
         else:
             cur_temp = _thermal_step(th, t_use, dts[j], torque * abs(omega[k]))
-        states[k] = x
-        if record:
-            forces[k] = work[f0:f0 + nlam]
-        temps[k] = cur_temp
-        films[k] = film
-        torque_out[j] = torque
+        if states.shape[0] == n:
+            states[k] = x[0]
+        if temps.size == n:
+            temps[k] = cur_temp
+            films[k] = film
+        if torque_out.size == n - 1:
+            torque_out[j] = torque
+        if emit:
+            _emit(k, offset + k, work, fr, consts, idx, press, omega, sg, cur_temp, film,
+                  outs, normal, forces)
+        elif forces.shape[0] == n:
+            for i in range(nlam):
+                forces[k, i] = work[f0 + i]
+    for i in range(nlam):
+        stuck[i] = bb[kernel_box.STUCK, i]
+        sigma[i] = fs[kernel_box.SIGMA, i]
     return film, cur_temp
 
 
@@ -403,29 +353,25 @@ def lowpass_series(t, u, time_constant: float, engine: str = "auto") -> np.ndarr
     return out
 
 
-def _box_matrices(law_name, table, nlam, head):
-    prefix = "coulomb" if law_name == "coulomb" else "passive"
+def _box_matrices(law_name, table):
+    """Stacked per-dt matrices of the box laws: stick and normal transposed, G, Gᵀ, H."""
     if law_name not in ("coulomb", "ff_t", "ff_v"):
         empty = np.zeros((len(table), 1, 1))
-        return empty, empty, empty, empty
-    stack = [np.ascontiguousarray([getattr(e, f"{prefix}_{name}") for e in table])
-             for name in ("stick", "normal", "g", "h")]
-    return tuple(stack)
+        return empty, empty, empty, empty, empty
+    prefix = "coulomb" if law_name == "coulomb" else "passive"
+    stick, normal, g, h = ([getattr(e, f"{prefix}_{name}") for e in table]
+                           for name in ("stick", "normal", "g", "h"))
+    return (np.ascontiguousarray(np.transpose(stick, (0, 2, 1))),
+            np.ascontiguousarray(np.transpose(normal, (0, 2, 1))),
+            np.ascontiguousarray(g), np.ascontiguousarray(np.transpose(g, (0, 2, 1))),
+            np.ascontiguousarray(h))
 
 
-def run_loop(model, table, inverse, dts, press, omega, temp, sign, states, forces, temps,
-             films, engine: str = "auto"):
-    """Run :func:`~clutch_ros.model.simulate.simulate`'s steps 1..n-1 compiled.
-
-    Same arguments and effects as the numpy loop there (fills ``states[1:]``, ``forces[1:]``
-    for laws that record them, ``temps[1:]``, ``films[1:]``; leaves ``model`` as the step
-    loop does) and returns the law's torque per step [N m]. Returns None when the caller must
-    run the numpy loop: ``engine="numpy"``, or ``"auto"`` with the kernel unavailable (the
-    reason is logged, see the module docstring). ``engine="kernel"`` raises
-    :class:`KernelUnavailableError` instead.
-    """
+def _run(model, table, inverse, dts, press, omega, temp, sign, states, forces, temps, films,
+         torque, outs, normal, offset, engine):
+    """Call the compiled loop (see :func:`run_loop`); False when the numpy path must run."""
     if check_engine(engine) == "numpy":
-        return None
+        return False
     law = model.law
     codes = LAW_CODES.get(law.name)
     loop = _compiled()
@@ -435,39 +381,75 @@ def run_loop(model, table, inverse, dts, press, omega, temp, sign, states, force
             raise KernelUnavailableError(f"engine='kernel': {why}")
         if codes is None:
             _log.warning("model kernel: %s; numpy path", why)
-        return None
+        return False
     lay = model.layout
-    fr_p, th_p = model._fr, model.params.thermal
+    fr_p, th_p, pk = model._fr, model.params.thermal, model.params.pack
     fr = np.array([fr_p.mu_ref, fr_p.temperature_slope, fr_p.temperature_ref,
                    fr_p.pressure_loss_at_ref, fr_p.pressure_ref, fr_p.stribeck_speed,
                    fr_p.static_ratio, fr_p.film_depth, fr_p.mu_min, fr_p.film_thinning_time,
                    fr_p.film_recovery_time], dtype=float)
     th = np.array([th_p.heat_capacity, th_p.conductance, th_p.oil_temperature], dtype=float)
-    ms = np.ascontiguousarray([e.M for e in table])
-    kmats, nmats, gmats, hmats = _box_matrices(law.name, table, lay.lamella_count, lay.head)
+    mts = np.ascontiguousarray(np.transpose([e.M for e in table], (0, 2, 1)))
+    kts, nts, gmats, gts, hmats = _box_matrices(law.name, table)
     idx = np.array([lay.n_state, lay.i_front, lay.i_force, lay.i_torque, lay.law_states.start,
                     lay.forces.start, lay.lamella_count, lay.head], dtype=np.int64)
     consts = np.array([model._area, model._c2k, model._k_na, getattr(law, "gain", 0.0),
                        getattr(law, "coef", 0.0), 1.0 if model._film_on else 0.0,
-                       model._film, model._temp])
+                       model._film, model._temp, model._c2n, pk.lamella_stiffness,
+                       model._sign_speed])
     warm = law.warm_state()
     stuck = np.ones(lay.lamella_count, dtype=np.bool_) if warm is None else warm[0].copy()
     sigma = np.ones(lay.lamella_count) if warm is None else warm[1].astype(float)
-    torque = np.empty(dts.size)
     work_before = model._work.copy()
     try:
-        film, cur_temp = loop(ms, np.ascontiguousarray(inverse, dtype=np.int64),
+        film, cur_temp = loop(mts, np.ascontiguousarray(inverse, dtype=np.int64),
                               np.ascontiguousarray(dts, dtype=float), press, omega, temp, sign,
-                              model._work, idx, consts, fr, th, codes[0], codes[1], kmats,
-                              nmats, gmats, hmats, stuck, sigma, states, forces, temps, films,
-                              torque, law.records_forces)
+                              model._work, idx, consts, fr, th, codes[0], codes[1], kts, nts,
+                              gmats, gts, hmats, stuck, sigma, states, forces, temps, films, torque,
+                              outs, normal, offset)
     except _state["numba_error"] as err:  # compilation (typing/lowering) failed: nothing ran
         np.copyto(model._work, work_before)
         _disable(f"compilation failed ({type(err).__name__}: {str(err).splitlines()[0]})")
         if engine == "kernel":
             raise KernelUnavailableError(f"engine='kernel': {_state['reason']}") from err
-        return None
+        return False
     model._film, model._temp = float(film), float(cur_temp)
     if warm is not None:
         law.set_warm_state((stuck, sigma))
-    return torque
+    return True
+
+
+def run_loop(model, table, inverse, dts, press, omega, temp, sign, states, forces, temps,
+             films, engine: str = "auto"):
+    """Run :func:`~clutch_ros.model.simulate.simulate`'s steps 1..n-1 compiled.
+
+    Same arguments and effects as the numpy loop there (fills ``states[1:]``, ``forces[1:]``,
+    ``temps[1:]``, ``films[1:]``; leaves ``model`` as the step loop does) and returns the
+    law's torque per step [N m]. Returns None when the caller must run the numpy loop:
+    ``engine="numpy"``, or ``"auto"`` with the kernel unavailable (the reason is logged, see
+    the module docstring). ``engine="kernel"`` raises :class:`KernelUnavailableError` instead.
+    """
+    torque = np.empty(dts.size)
+    none = np.empty((0, 0))
+    if _run(model, table, inverse, dts, press, omega, temp, sign, states, forces, temps,
+            films, torque, none, none, 0, engine):
+        return torque
+    return None
+
+
+def run_columns(model, table, inverse, dts, press, omega, temp, outs, normal=None,
+                forces=None, offset: int = 0, engine: str = "auto") -> bool:
+    """Run the whole series compiled, writing only the outputs (no state history).
+
+    ``outs`` (9, offset + n): in columns ``offset:offset + n`` the :data:`OUTPUT_COLUMNS` of
+    every sample, sample 0 (the state ``model`` starts in) included, with the formulas of
+    :func:`~clutch_ros.model.simulate.simulate`; ``normal`` and ``forces`` (offset + n, N), if
+    given: S_n [N] and the held spline forces F_fn [N] (laws that keep them in the work
+    vector, i.e. not ``ff_t_printed`` / ``ff_v_printed``) in the same rows. The sign is
+    computed in the loop. Returns False when the numpy path must run (as :func:`run_loop`
+    returns None).
+    """
+    none = np.empty((0, 0))
+    return _run(model, table, inverse, dts, press, omega, temp, np.empty(0), none,
+                none if forces is None else forces, np.empty(0), np.empty(0), np.empty(0),
+                outs, none if normal is None else normal, int(offset), engine)

@@ -26,7 +26,7 @@ from clutch_ros.model.errors import DuplicateSample, InputError, NonFiniteSample
 from clutch_ros.model.friction import friction_coefficient, sign_factor
 from clutch_ros.model.pack import PackModel
 
-__all__ = ["simulate", "SimulationResult", "as_series"]
+__all__ = ["simulate", "simulate_columns", "SimulationResult", "as_series"]
 
 
 @dataclass
@@ -145,17 +145,11 @@ def simulate(params, t, actuating_pressure, slip_speed, lamella_temperature,
     return result
 
 
-def _loop(model, t, press, omega, temp, sign, states, forces, temps, films, engine):
-    """Run steps 1..n-1 compiled or with :meth:`PackModel._advance` (the code ``step()`` runs).
-
-    Fills the state, force, temperature and film rows; returns (the law's torque per step,
-    the engine that ran).
-    """
-    lay = model.layout
-    nx = lay.n_state
-    work = model._work
-    law = model.law
+def _table(model, t):
+    """Return the steps of ``t``: (dts [s], discretisation entries, entry index per step)."""
     dts = np.diff(t)
+    if dts.size == 0:  # one sample: no step (an entry only to give the loop its shapes)
+        return dts, [model.discretisation(1e-3)], np.zeros(0, dtype=np.int64)
     res = model.dt_resolution
     keys = np.maximum(np.rint(dts / res), 1.0).astype(np.int64) if res > 0.0 else dts
     if keys.min() == keys.max():  # uniform sampling: one entry
@@ -167,6 +161,52 @@ def _loop(model, t, press, omega, temp, sign, states, forces, temps, films, engi
         table = [model.discretisation(float(k) * res) for k in uniq.tolist()]
     else:
         table = [model.discretisation(float(d)) for d in uniq.tolist()]
+    return dts, table, inverse
+
+
+def simulate_columns(params, t, actuating_pressure, slip_speed, lamella_temperature, outs, *,
+                     model: PackModel, normal=None, forces=None, offset: int = 0,
+                     engine: str = "auto") -> bool:
+    """:func:`simulate`'s outputs written straight into arrays by the compiled kernel.
+
+    For long series when only some outputs are needed: no state history, no per-lamella
+    arrays unless asked. ``t`` [s] (validated, strictly increasing), pressure [Pa], slip
+    [rad/s] and temperature [°C] are float64 arrays of one length n (NaN temperature: not
+    measured); ``outs`` (9, ≥ offset + n) receives
+    :data:`~clutch_ros.model.kernel.OUTPUT_COLUMNS` in columns ``offset:offset + n``,
+    ``normal`` / ``forces`` (≥ offset + n, N) the normal [N] and spline forces [N] in rows
+    ``offset:offset + n``. ``model`` is reset
+    to the equilibrium at the first sample, as :func:`simulate` does. Returns False, having
+    done nothing, when the kernel cannot run it (``engine="numpy"``, numba unavailable, or a
+    law whose forces are not kept per step: ``ff_t_printed`` / ``ff_v_printed``); the caller
+    then uses :func:`simulate`. Same results as :func:`simulate` to rounding
+    (tests/model/test_kernel.py).
+    """
+    if kernel.check_engine(engine) == "numpy" or model.law.has_force and \
+            not model.law.records_forces or not kernel.available():
+        if engine == "kernel" and not kernel.available():
+            raise kernel.KernelUnavailableError(f"engine='kernel': {kernel.unavailable_reason()}")
+        return False
+    if model.params != params:
+        model.set_params(params)
+    model.reset(float(actuating_pressure[0]), float(lamella_temperature[0]),
+                float(slip_speed[0]))
+    dts, table, inverse = _table(model, t)
+    return kernel.run_columns(model, table, inverse, dts, actuating_pressure, slip_speed,
+                              lamella_temperature, outs, normal, forces, offset, engine)
+
+
+def _loop(model, t, press, omega, temp, sign, states, forces, temps, films, engine):
+    """Run steps 1..n-1 compiled or with :meth:`PackModel._advance` (the code ``step()`` runs).
+
+    Fills the state, force, temperature and film rows; returns (the law's torque per step,
+    the engine that ran).
+    """
+    lay = model.layout
+    nx = lay.n_state
+    work = model._work
+    law = model.law
+    dts, table, inverse = _table(model, t)
     torque = kernel.run_loop(model, table, inverse, dts, press, omega, temp, sign, states,
                              forces, temps, films, engine)
     if torque is not None:

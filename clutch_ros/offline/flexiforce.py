@@ -10,11 +10,12 @@ See ARCHITECTURE.md (offline layer).
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from clutch_ros.bag.rig_states import read_rig_states
+from clutch_ros.bag.rig_states import REPLAY_FIELDS, read_rig_states
 from clutch_ros.config.params_file import load_yaml
 from clutch_ros.errors import ClutchError
 from clutch_ros.model.calibration import (
@@ -27,8 +28,11 @@ from clutch_ros.model.calibration import (
 from clutch_ros.model.fit_data import FitRun
 from clutch_ros.offline.batch import run_jobs
 
-__all__ = ["load_runs", "flexiforce_pressures", "flexiforce_voltages", "check_sensor_count",
-           "read_calibration"]
+__all__ = ["FIT_FIELDS", "load_runs", "flexiforce_pressures", "flexiforce_voltages",
+           "check_sensor_count", "read_calibration"]
+
+#: The RigState fields a fit reads (the replay's and the FlexiForce voltages).
+FIT_FIELDS = (*REPLAY_FIELDS, "ff_voltages")
 
 
 def load_runs(bags, piston_area: float, *, pdiff: bool = True,
@@ -45,7 +49,8 @@ def load_runs(bags, piston_area: float, *, pdiff: bool = True,
     none).
     """
     paths = [Path(bag) for bag in bags]
-    arrays = list(zip(paths, run_jobs(read_rig_states, paths, jobs=jobs, cluster=cluster)))
+    read = partial(read_rig_states, fields=FIT_FIELDS)  # not the wheel speeds, currents ...
+    arrays = list(zip(paths, run_jobs(read, paths, jobs=jobs, cluster=cluster)))
     for bag, rig in arrays:
         if len(rig) == 0:
             raise ClutchError(f"{bag}: no RigState messages")

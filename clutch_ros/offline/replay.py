@@ -89,12 +89,14 @@ def replay_bag(
     topic: str | None = None,
     store: Typestore | None = None,
     fields: Any = None,
+    per_lamella: bool = True,
 ) -> ReplayResult:
     """Run the estimator with ``params`` over the RigState stream of ``bag``.
 
     ``fields``: the RigState fields read into ``result.rig`` (default every field;
     :data:`~clutch_ros.bag.rig_states.REPLAY_FIELDS` is what the estimate needs, a smaller
-    and faster read).
+    and faster read). ``per_lamella`` False: the batch has no per-lamella force arrays (two
+    (n, N) arrays fewer; nothing written or plotted needs them).
 
     Raises:
         BagError: no RigState topic, or no messages; plus everything
@@ -117,6 +119,7 @@ def replay_bag(
         rig.slip_speed,
         measured,
         on_reject="skip",
+        per_lamella=per_lamella,
     )
     estimate_s = time.perf_counter() - start
     ok = batch.accepted
@@ -161,7 +164,8 @@ class ReplayJob:
         start = time.perf_counter()
         # a report plots every field; otherwise read only what the estimate needs
         fields = None if self.keep_result else REPLAY_FIELDS
-        result = replay_bag(bag, self.params, topic=self.topic, fields=fields)
+        result = replay_bag(bag, self.params, topic=self.topic, fields=fields,
+                            per_lamella=self.keep_result or out is not None)
         summary = result.summary
         seconds = time.perf_counter() - start
         summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))

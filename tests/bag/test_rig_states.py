@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from clutch_ros.bag import columns
 from clutch_ros.bag.columns import ColumnDecoder, CorruptMessageError, columns_slow
 from clutch_ros.bag.errors import BagError
 from clutch_ros.bag.reader import open_bag
@@ -183,3 +184,41 @@ def test_mcap_written_by_the_mcap_library_reads_identically(tmp_path, store, com
     for fast in (True, False):
         arrays = read_rig_states(file, fast=fast)
         _assert_columns_match_messages(arrays.columns, msgs)
+
+
+def test_column_decoder_fixed_layout_shortcut_checks_every_length_field(store, monkeypatch):
+    """The fixed-layout shortcut decodes only batches of exactly the learnt layout.
+
+    After a batch of one layout, a batch of equally long messages with another layout (a
+    longer frame id, one voltage fewer: same byte count) is walked, not copied at the old
+    offsets; a batch of the learnt layout is decoded by the shortcut, identically.
+    """
+
+    def batch(msgs):
+        raws = [cdr(m, RIG_STATE) for m in msgs]
+        assert len({len(r) for r in raws}) == 1
+        buf = np.frombuffer(b"".join(raws) + bytes(8), dtype=np.uint8)
+        lengths = np.full(len(raws), len(raws[0]), dtype=np.int64)
+        return buf, np.arange(len(raws), dtype=np.int64) * len(raws[0]), lengths
+
+    def msg(i, frame_id, volts):
+        return rig_state_msg(STAMP_NS + i, frame_id=frame_id, actuating_pressure=1e5 + i,
+                             slip_speed=-0.5 * i, has_measured_torque=bool(i % 2),
+                             ff_voltages=np.arange(volts) + 0.5, wheel_speeds=[1.0, 2.0])
+
+    first = [msg(i, "rig", 8) for i in range(40)]
+    other = [msg(i, "rig" + "y" * 8, 7) for i in range(40)]  # 8 bytes more, 8 bytes less
+    assert len(cdr(first[0], RIG_STATE)) == len(cdr(other[0], RIG_STATE))
+    walks = []
+    run = columns._Walk.run
+    monkeypatch.setattr(columns._Walk, "run", lambda self, steps: walks.append(1) or
+                        run(self, steps))
+    decoder = ColumnDecoder(store, RIG_STATE)
+    expect = []
+    for msgs, walked in ((first, True), (first, False), (other, True), (other, False),
+                         (first, True), (other[:1] + first[1:], True), (first, False)):
+        before = len(walks)
+        cols = decoder.decode_buffer(*batch(msgs))
+        _assert_columns_match_messages(cols, msgs)
+        expect.append((len(walks) > before) == walked)
+    assert all(expect), expect

@@ -101,6 +101,60 @@ def test_estimate_batch_uses_the_kernel_and_equals_numpy():
                                atol=1e-12 * scale)
 
 
+@pytest.mark.parametrize("law", LAWS)
+def test_estimate_batch_columns_path_equals_numpy_in_every_field(law):
+    """The output-only loop (simulate_columns, what replay and fit run) against numpy.
+
+    Every EstimateBatch field, with a measured temperature and without (thermal state), with
+    rejected samples and a gap (two segments, non-contiguous rows). Tolerances as above:
+    rtol 1e-9 (atol 1e-12 of the field's largest value) on every field except P_diff and the
+    spline forces; P_diff = front − rear is a difference of two nearly equal pressures, so
+    its rounding is relative to the pressures: atol 1e-12 of the largest front pressure;
+    spline forces (and spline_correction, a weighted sum of them) within 1e-6 of the
+    largest force for the box laws, 1e-9 otherwise.
+    """
+    params = load_params(preset_path("flexiforce_8")).with_law(law)
+    seq = make_sequence("pbd_release", 30.0)
+    t = seq.t.copy()
+    t[t.size // 2:] += 2.0  # a gap longer than max_gap_s: a second segment
+    p = seq.actuating_pressure.copy()
+    p[7] = math.nan  # rejected: non-finite
+    t[11] = t[10]  # rejected: duplicate stamp
+    measured = np.where(np.arange(t.size) % 5 == 0, math.nan, 50.0)
+    for temp in (np.linspace(35.0, 90.0, t.size), np.full(t.size, math.nan)):
+        args = (params, t, p, temp, seq.slip_speed, measured)
+        fast = estimate_batch(*args, on_reject="skip", engine="kernel")
+        ref = estimate_batch(*args, on_reject="skip", engine="numpy")
+        lean = estimate_batch(*args, on_reject="skip", engine="kernel", per_lamella=False)
+        assert lean.lamella_normal_force is None and lean.spline_friction_force is None
+        force_tol = 1e-6 if law in BOX_LAWS else 1e-9
+        fmax = float(np.nanmax(np.abs(ref.spline_friction_force))) + 1e-12
+        front = float(np.nanmax(np.abs(ref.front_pressure)))
+        for field in ("accepted", "reinitialised", "overshoot", "undershoot"):
+            assert np.array_equal(getattr(fast, field), getattr(ref, field)), field
+        for field in ("stamp", "modelled_torque", "reference_torque", "measured_torque",
+                      "torque_accuracy", "friction_coefficient", "lamella_normal_force",
+                      "spline_friction_force", "front_pressure", "rear_pressure",
+                      "pressure_difference", "slip_speed_filtered", "actuating_pressure",
+                      "lamella_temperature", "slip_speed", "compression",
+                      "spline_correction"):
+            a, b = getattr(fast, field), getattr(ref, field)
+            scale = float(np.nanmax(np.abs(b))) if np.isfinite(b).any() else 0.0
+            rtol, atol = 1e-9, 1e-12 * scale
+            if field == "pressure_difference":
+                atol = 1e-12 * front
+            elif field == "spline_friction_force":
+                rtol, atol = 0.0, force_tol * fmax
+            elif field == "spline_correction":
+                rtol = 0.0
+                n_lam, area = params.pack.lamella_count, params.pack.piston_area
+                atol = force_tol * fmax * (n_lam + 1) / (2 * area)  # Σ n F_n / (N A)
+            np.testing.assert_allclose(a, b, rtol=rtol, atol=atol, err_msg=f"{law}: {field}")
+            if field not in ("lamella_normal_force", "spline_friction_force"):
+                np.testing.assert_array_equal(getattr(lean, field), a, err_msg=field)
+        assert not fast.accepted[7] and not fast.accepted[11] and fast.reinitialised.sum() == 2
+
+
 def test_compiled_slip_lowpass_equals_numpy():
     """The estimator's slip filter over a jittery series: same operations, so rtol 1e-13."""
     rng = np.random.default_rng(3)
