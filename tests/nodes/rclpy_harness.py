@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+import tempfile
 import time
+from contextlib import contextmanager
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -88,3 +92,27 @@ def assert_bad_settings_fail_at_start(node: str, cases: dict, env: dict) -> None
         assert "Traceback" not in err, (name, err)
         lines = [line for line in err.splitlines() if line.startswith(f"{node}: error:")]
         assert len(lines) == 1 and cases[name][1] in lines[0], (name, err)
+
+
+@contextmanager
+def node_process(node: str, env: dict, *ros_args: str):
+    """Run ``python -m clutch_ros.nodes.<node> --ros-args ROS_ARGS``; stop it when done.
+
+    The node's output goes to a temporary file, not a pipe: a pipe nobody reads fills up
+    (64 KiB) and then blocks a node that logs a lot. On exit: SIGTERM, then SIGKILL after 10 s.
+    """
+    from tests.conftest import REPO
+
+    with tempfile.TemporaryFile("w+") as log:
+        proc = subprocess.Popen([sys.executable, "-m", f"clutch_ros.nodes.{node}", "--ros-args",
+                                 *ros_args], cwd=REPO, env=env, stdout=log,
+                                stderr=subprocess.STDOUT, text=True)
+        try:
+            yield proc
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(10)

@@ -8,13 +8,11 @@ released (``trim_pressure`` 0) after ``controller.trim_hold``.
 """
 
 import math
-import subprocess
-import sys
 
 import pytest
 
 from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness, rig_state
+from tests.nodes.rclpy_harness import Harness, node_process, rig_state
 
 pytestmark = pytest.mark.ros
 
@@ -25,17 +23,9 @@ REQUEST, SCALE = 600.0, 1.1  # [N m], [1]
 
 @pytest.fixture
 def controller(ros_env):
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "clutch_ros.nodes.controller", "--ros-args", "--params-file",
-         str(PRESET), "-p", "controller.max_pressure:=30e5"],
-        cwd=REPO, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    yield proc
-    proc.terminate()
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(10)
+    with node_process("controller", ros_env, "--params-file", str(PRESET),
+                      "-p", "controller.max_pressure:=30e5") as proc:
+        yield proc
 
 
 def test_trim_share_is_published_and_released_without_measurement(controller):

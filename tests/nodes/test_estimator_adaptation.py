@@ -14,14 +14,12 @@ out (``has_measured_torque`` false). Checked:
 """
 
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness
+from tests.nodes.rclpy_harness import Harness, node_process
 
 pytestmark = pytest.mark.ros
 
@@ -68,17 +66,9 @@ def _msg(row):
 
 @pytest.fixture
 def estimator(ros_env):
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "clutch_ros.nodes.estimator", "--ros-args", "--params-file",
-         str(PRESET), "-p", "estimator.max_sample_age:=0.0"],
-        cwd=REPO, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    yield proc
-    proc.terminate()
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(10)
+    with node_process("estimator", ros_env, "--params-file", str(PRESET),
+                      "-p", "estimator.max_sample_age:=0.0") as proc:
+        yield proc
 
 
 def test_adapts_freezes_with_a_diagnostic_and_saves(estimator, tmp_path):

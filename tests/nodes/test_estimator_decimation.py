@@ -13,14 +13,12 @@ not counted as accepted). Checked:
 """
 
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness, rig_state
+from tests.nodes.rclpy_harness import Harness, node_process, rig_state
 
 pytestmark = pytest.mark.ros
 
@@ -32,18 +30,10 @@ N_DECIMATED, N_FULL = 30, 6  # samples sent with publish_every 3, then with 1
 
 @pytest.fixture
 def estimator(ros_env):
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "clutch_ros.nodes.estimator", "--ros-args", "--params-file",
-         str(PRESET), "-p", "estimator.max_sample_age:=0.0", "-p",
-         "estimator.publish_every:=3"],
-        cwd=REPO, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    yield proc
-    proc.terminate()
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(10)
+    with node_process("estimator", ros_env, "--params-file", str(PRESET),
+                      "-p", "estimator.max_sample_age:=0.0",
+                      "-p", "estimator.publish_every:=3") as proc:
+        yield proc
 
 
 def _diag_values(diags) -> dict:

@@ -7,13 +7,11 @@ comes back, the skips are reported on /diagnostics, and the node is still runnin
 """
 
 import math
-import subprocess
-import sys
 
 import pytest
 
 from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness, rig_state
+from tests.nodes.rclpy_harness import Harness, node_process, rig_state
 
 pytestmark = pytest.mark.ros
 
@@ -22,16 +20,9 @@ PRESET = REPO / "params" / "flexiforce_8.yaml"
 
 @pytest.fixture
 def estimator(ros_env):
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "clutch_ros.nodes.estimator", "--ros-args", "--params-file",
-         str(PRESET), "-p", "estimator.max_sample_age:=0.0"],
-        cwd=REPO, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    yield proc
-    proc.terminate()
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
+    with node_process("estimator", ros_env, "--params-file", str(PRESET),
+                      "-p", "estimator.max_sample_age:=0.0") as proc:
+        yield proc
 
 
 def test_estimates_per_sample_and_bad_samples_skipped(estimator):

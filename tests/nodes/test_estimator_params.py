@@ -16,13 +16,11 @@ A test node talks to a real ``estimator`` process over DDS:
 """
 
 import math
-import subprocess
-import sys
 
 import pytest
 
 from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness, rig_state
+from tests.nodes.rclpy_harness import Harness, node_process, rig_state
 
 pytestmark = pytest.mark.ros
 
@@ -31,27 +29,11 @@ T0 = 1_700_000_000.0  # stamps of the runtime-change test [s]
 DT = 0.01  # sample period [s]
 
 
-def _start(ros_env, *extra):
-    return subprocess.Popen(
-        [sys.executable, "-m", "clutch_ros.nodes.estimator", "--ros-args", "--params-file",
-         str(PRESET), *extra],
-        cwd=REPO, env=ros_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-
-
-def _stop(proc):
-    proc.terminate()
-    try:
-        proc.wait(10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait(10)
-
-
 @pytest.fixture
 def estimator(ros_env):
-    proc = _start(ros_env, "-p", "estimator.max_sample_age:=0.0")
-    yield proc
-    _stop(proc)
+    with node_process("estimator", ros_env, "--params-file", str(PRESET), "-p",
+                      "estimator.max_sample_age:=0.0") as proc:
+        yield proc
 
 
 def _connect(h, *, timeout=30.0):
@@ -224,8 +206,8 @@ def test_sim_time_diagnostics_follow_clock(ros_env):
 
     # a generous max_sample_age: the test's clock runs ~5x faster than the wall clock, and
     # the node may lag a little behind it on a loaded machine
-    proc = _start(ros_env, "-p", "use_sim_time:=true", "-p", "estimator.max_sample_age:=10.0")
-    try:
+    with node_process("estimator", ros_env, "--params-file", str(PRESET), "-p",
+                      "use_sim_time:=true", "-p", "estimator.max_sample_age:=10.0") as proc:
         with Harness() as h:
             diags = h.collect(DiagnosticArray, "/diagnostics", 50)
             clock = h.node.create_publisher(Clock, "/clock", 10)
@@ -276,5 +258,3 @@ def test_sim_time_diagnostics_follow_clock(ros_env):
         # the samples stamped with the simulated time were fresh, hence estimated
         assert len(estimates) == 80
         assert all(1000.0 < stamp_to_sec(e.header.stamp) <= last_sim for e in estimates)
-    finally:
-        _stop(proc)
