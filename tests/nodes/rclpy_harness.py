@@ -116,3 +116,20 @@ def node_process(node: str, env: dict, *ros_args: str):
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait(10)
+
+
+def connect_estimator(h: Harness, *, timeout: float = 30.0):
+    """Return (rig_state publisher, estimates list, parameter client) once all are matched."""
+    from clutch_msgs.msg import ClutchEstimate, RigState
+    from rclpy.parameter_client import AsyncParameterClient
+
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+
+    estimates = h.collect(ClutchEstimate, "clutch_estimate", reliable_qos())
+    pub = h.node.create_publisher(RigState, "rig_state", sensor_qos())
+    client = AsyncParameterClient(h.node, "estimator")
+    h.spin_until(lambda: pub.get_subscription_count() > 0
+                 and h.node.count_publishers("clutch_estimate") > 0
+                 and client.services_are_ready(), timeout, "the estimator to connect")
+    h.spin_for(0.5)
+    return pub, estimates, client

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness, node_process
+from tests.nodes.rclpy_harness import Harness, connect_estimator, node_process
 
 pytestmark = pytest.mark.ros
 
@@ -72,26 +72,18 @@ def estimator(ros_env):
 
 
 def test_adapts_freezes_with_a_diagnostic_and_saves(estimator, tmp_path):
-    from clutch_msgs.msg import ClutchEstimate, RigState
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from rclpy.parameter import Parameter
-    from rclpy.parameter_client import AsyncParameterClient
 
     from clutch_ros.config.params_file import load_params
     from clutch_ros.model.adaptation import AdaptiveEstimator
-    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos
     from clutch_ros.nodes.stamps import stamp_to_sec
 
     rows = _samples()
     with Harness() as h:
-        estimates = h.collect(ClutchEstimate, "clutch_estimate", reliable_qos())
         diags = h.collect(DiagnosticArray, "/diagnostics", reliable_qos())
-        pub = h.node.create_publisher(RigState, "rig_state", sensor_qos())
-        client = AsyncParameterClient(h.node, "estimator")
-        h.spin_until(lambda: pub.get_subscription_count() > 0
-                     and h.node.count_publishers("clutch_estimate") > 0
-                     and client.services_are_ready(), 30.0, "the estimator to connect")
-        h.spin_for(0.5)
+        pub, estimates, client = connect_estimator(h)
         for k, row in enumerate(rows):
             pub.publish(_msg(row))
             h.spin_for(0.002)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness, node_process, rig_state
+from tests.nodes.rclpy_harness import Harness, connect_estimator, node_process, rig_state
 
 pytestmark = pytest.mark.ros
 
@@ -46,14 +46,12 @@ def _diag_values(diags) -> dict:
 
 
 def test_publish_every_decimates_the_output_not_the_model(estimator):
-    from clutch_msgs.msg import ClutchEstimate, RigState
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.parameter import Parameter
-    from rclpy.parameter_client import AsyncParameterClient
 
     from clutch_ros.config.params_file import load_params
     from clutch_ros.model.adaptation import AdaptiveEstimator
-    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos
     from clutch_ros.nodes.stamps import stamp_to_sec
 
     msgs = [rig_state(T0 + DT * i, 5e5 + 1e5 * i) for i in range(N_DECIMATED + N_FULL)]
@@ -74,14 +72,8 @@ def test_publish_every_decimates_the_output_not_the_model(estimator):
         return future.result().results[0]
 
     with Harness() as h:
-        estimates = h.collect(ClutchEstimate, "clutch_estimate", reliable_qos())
         diags = h.collect(DiagnosticArray, "/diagnostics", reliable_qos())
-        pub = h.node.create_publisher(RigState, "rig_state", sensor_qos())
-        client = AsyncParameterClient(h.node, "estimator")
-        h.spin_until(lambda: pub.get_subscription_count() > 0
-                     and h.node.count_publishers("clutch_estimate") > 0
-                     and client.services_are_ready(), 30.0, "the estimator to connect")
-        h.spin_for(0.5)
+        pub, estimates, client = connect_estimator(h)
         send(h, pub, first, nan_after=10)
         # everything sent was processed once the node reports all of it accepted
         h.spin_until(lambda: _diag_values(diags).get("accepted") == str(N_DECIMATED), 20.0,

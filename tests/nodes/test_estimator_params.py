@@ -20,7 +20,7 @@ import math
 import pytest
 
 from tests.conftest import REPO
-from tests.nodes.rclpy_harness import Harness, node_process, rig_state
+from tests.nodes.rclpy_harness import Harness, connect_estimator, node_process, rig_state
 
 pytestmark = pytest.mark.ros
 
@@ -34,23 +34,6 @@ def estimator(ros_env):
     with node_process("estimator", ros_env, "--params-file", str(PRESET), "-p",
                       "estimator.max_sample_age:=0.0") as proc:
         yield proc
-
-
-def _connect(h, *, timeout=30.0):
-    """Return (rig_state publisher, estimates list, parameter client) once all are matched."""
-    from clutch_msgs.msg import ClutchEstimate, RigState
-    from rclpy.parameter_client import AsyncParameterClient
-
-    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
-
-    estimates = h.collect(ClutchEstimate, "clutch_estimate", reliable_qos())
-    pub = h.node.create_publisher(RigState, "rig_state", sensor_qos())
-    client = AsyncParameterClient(h.node, "estimator")
-    h.spin_until(lambda: pub.get_subscription_count() > 0
-                 and h.node.count_publishers("clutch_estimate") > 0
-                 and client.services_are_ready(), timeout, "the estimator to connect")
-    h.spin_for(0.5)
-    return pub, estimates, client
 
 
 def _call(h, future, what: str):
@@ -100,7 +83,7 @@ def test_runtime_change_keeps_the_pack_state(estimator):
     msgs = [rig_state(T0 + DT * i, 5e5 if i < 10 else 30e5) for i in range(70)]
     before, after = msgs[:40], msgs[40:]
     with Harness() as h:
-        pub, estimates, client = _connect(h)
+        pub, estimates, client = connect_estimator(h)
         _send(h, pub, estimates, before)
         result = _set(h, client, "friction.mu_ref", mu_new)
         assert result.successful, result.reason
@@ -172,7 +155,7 @@ def test_invalid_changes_are_rejected_with_the_models_reason(estimator):
         ("friction.mu_ref", 0.005),  # in range, but below friction.mu_min (cross-key rule)
     ]
     with Harness() as h:
-        pub, estimates, client = _connect(h)
+        pub, estimates, client = connect_estimator(h)
         for key, value in cases:
             result = _set(h, client, key, value)
             assert not result.successful, (key, value)
@@ -211,7 +194,7 @@ def test_sim_time_diagnostics_follow_clock(ros_env):
         with Harness() as h:
             diags = h.collect(DiagnosticArray, "/diagnostics", 50)
             clock = h.node.create_publisher(Clock, "/clock", 10)
-            pub, estimates, _ = _connect(h)
+            pub, estimates, _ = connect_estimator(h)
             h.spin_until(lambda: clock.get_subscription_count() > 0, 30.0,
                          "the estimator's /clock subscription")
             published_ns = set()
