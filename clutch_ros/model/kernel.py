@@ -27,6 +27,13 @@ order of the reference); no fastmath. :func:`run_columns` computes the outputs o
 sample inside the loop and keeps no state history (the estimator's batch path and the fit);
 :func:`run_loop` records the states as :func:`~clutch_ros.model.simulate.simulate` needs.
 
+The scalar helpers ``_mu``, ``_film_step``, ``_thermal_step`` and ``_sign`` restate, for one
+sample, the formulas of :mod:`~clutch_ros.model.friction`, :mod:`~clutch_ros.model.film` and
+the thermal model on purpose: numba checks a cached function against its own file only, so a
+compiled function inlined from another module would keep running its old version after that
+module changed. The copies live here, and the field-by-field tests against the numpy path
+(tests/model/test_kernel.py) catch any drift.
+
 Compiled code is cached on disk (``cache=True``) in ``NUMBA_CACHE_DIR`` (default: a
 ``numba/<digest of kernel_box.py>`` folder in the user cache dir, ``$XDG_CACHE_HOME`` or
 ``~/.cache``, under ``clutch_ros``), so only the first call after install pays the few
