@@ -176,12 +176,14 @@ class RecorderNode(Node):
                 self.count_publishers(self.resolve_topic_name(t)) for t in topics):
             time.sleep(0.02)
 
-    def _offered_reliable(self, topic: str, default: bool) -> bool:
-        """Return True when every publisher of ``topic`` offers reliable (default: none yet)."""
+    def _offered_reliable(self, topic: str) -> bool:
+        """Return True when ``topic`` has publishers and every one offers reliable.
+
+        With none (one that vanished since it was seen), best effort: it matches any publisher.
+        """
         infos = self.get_publishers_info_by_topic(self.resolve_topic_name(topic))
-        if not infos:
-            return default
-        return all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+        return bool(infos) and all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+                                   for i in infos)
 
     def _register(self, topic: str, typename: str) -> str:
         """Add ``topic`` to the bag and the loss counts (idempotent); return its full name."""
@@ -190,9 +192,9 @@ class RecorderNode(Node):
         self.loss.add_topic(name)
         return name
 
-    def _subscribe(self, topic: str, typename: str, reliable: bool) -> None:
+    def _subscribe(self, topic: str, typename: str) -> None:
         name = self._register(topic, typename)
-        reliable = self._offered_reliable(topic, reliable)
+        reliable = self._offered_reliable(topic)
         if not reliable:
             self._best_effort.add(name)
         if reliable:
@@ -221,7 +223,7 @@ class RecorderNode(Node):
             self._pending.remove(topic)
             typename = DEFAULT_TOPICS.get(topic, types[0])
             try:
-                self._subscribe(topic, typename, True)
+                self._subscribe(topic, typename)
                 self.get_logger().info(f"recording {topic} ({typename})")
             except (ClutchError, ImportError, AttributeError) as err:
                 self.get_logger().error(f"cannot record {topic} ({typename}): {err}")
