@@ -91,6 +91,12 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # rclpy can raise from take_message when SIGINT shuts the context down while the
+        # executor takes a message (seen once in the controller under `clutch up`: exit 1);
+        # once the context is shut down that is the requested stop, not a failure
+        if rclpy.ok():
+            raise
     except (ClutchError, ParameterException, ValueError) as err:
         if node is not None:  # an error after start-up is a bug: show it
             raise
