@@ -10,6 +10,9 @@ and prints it as a multiple of the bag's real time (targets of issue 17: >= 1000
 - start-up: ``clutch replay --help`` (interpreter, imports, parser);
 - read only: a process that reads the bag the way replay does
   (:func:`~clutch_ros.bag.rig_states.read_rig_states` with the replay's fields) and exits;
+- not streamed: the same replay with ``--no-stream`` (the whole bag read before the estimate
+  starts, one core), beside the default that estimates in a second thread while it reads
+  (:mod:`clutch_ros.offline.streaming`);
 - numpy model loop (``--numpy-baseline``): the same replay with ``CLUTCH_KERNEL=0``, i.e. the
   numpy reference loop instead of the compiled kernel (:mod:`clutch_ros.model.kernel`).
 
@@ -85,17 +88,19 @@ def measure(bag: Path, laws: list[str], numpy_baseline: bool = False) -> dict:
     doc = {"bag": str(bag), "samples": samples,
            "startup": {"wall_s": startup.wall_s, "cpu_s": startup.cpu_s},
            "read_only": {"wall_s": read.wall_s, "cpu_s": read.cpu_s}, "replay": {}}
-    runs = [(law, law, None) for law in laws]
+    runs = [(key, law, None, extra) for law in laws
+            for key, extra in ((law, []), (f"{law} --no-stream", ["--no-stream"]))]
     if numpy_baseline:
-        runs += [(f"{law} (numpy loop)", law, {"CLUTCH_KERNEL": "0"}) for law in laws]
-    for key, law, env_extra in runs:
+        runs += [(f"{law} (numpy loop)", law, {"CLUTCH_KERNEL": "0"}, []) for law in laws]
+    for key, law, env_extra, extra in runs:
         run = run_process(["-m", "clutch_ros.cli", "replay", str(bag), "--params",
-                           "flexiforce_8", "--law", law, "--json"], env_extra=env_extra)
+                           "flexiforce_8", "--law", law, "--json", *extra], env_extra=env_extra)
         summary = run.json()[0]
         if summary["samples"] != samples:
             raise RuntimeError(f"replay saw {summary['samples']} of {samples} samples")
         doc["replay"][key] = {"wall_s": run.wall_s, "cpu_s": run.cpu_s,
-                              "read_s": summary["read_s"], "estimate_s": summary["estimate_s"]}
+                              "read_s": summary["read_s"], "estimate_s": summary["estimate_s"],
+                              "streamed": summary.get("streamed", False)}
     return doc
 
 
@@ -140,8 +145,13 @@ def main(argv: list[str] | None = None) -> int:
         x = realtime / r["wall_s"]
         verdict = "" if target is None else (
             f"; target >= {target:g}x {'met' if x >= target else 'NOT MET'}")
-        print(f"  {law}: in-process read {r['read_s']:.2f} s, estimate {r['estimate_s']:.2f} s "
-              f"({doc['samples'] / r['estimate_s']:,.0f} samples/s){verdict}")
+        if r["streamed"]:
+            split = (f"read with the estimate overlapped {r['read_s']:.2f} s, rest of the "
+                     f"estimate {r['estimate_s']:.2f} s")
+        else:
+            split = (f"read {r['read_s']:.2f} s, estimate {r['estimate_s']:.2f} s "
+                     f"({doc['samples'] / r['estimate_s']:,.0f} samples/s)")
+        print(f"  {law}: in-process {split}{verdict}")
     return 0
 
 

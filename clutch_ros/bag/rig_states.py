@@ -13,6 +13,7 @@ Both check the number of messages against the count the bag declares.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -144,9 +145,11 @@ def mcap_files(bag: BagReader) -> list[Path] | None:
 
 
 def read_fast(
-    bag: BagReader, topic: str, decoder: ColumnDecoder, files: list[Path]
+    bag: BagReader, topic: str, decoder: ColumnDecoder, files: list[Path], on_block=None
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Scan the MCAP files directly; same count check and order as the rosbags path.
+
+    ``on_block``: see :func:`read_rig_states`.
 
     Only valid when metadata.yaml agrees with the storage (``storage_issues`` empty): the scan
     selects messages by channel topic, while rosbags also requires the QoS to match.
@@ -158,9 +161,12 @@ def read_fast(
     for file in files:
         try:
             for block in scan_chunks(file, {topic}):
-                sink.add(decoder.decode_buffer(block.buf, block.starts, block.lengths))
+                part = decoder.decode_buffer(block.buf, block.starts, block.lengths)
+                sink.add(part)
                 times.append(block.times)
                 done += len(block.times)
+                if on_block is not None:
+                    on_block(part, block.times, declared)
         except CorruptMessageError as err:
             raise BagCorruptError(
                 file, f"{topic}: message {done + err.index + 1}: {err.cause}"
@@ -183,9 +189,12 @@ def read_fast(
 
 
 def read_via_rosbags(
-    bag: BagReader, topic: str, decoder: ColumnDecoder | None, batch: int
+    bag: BagReader, topic: str, decoder: ColumnDecoder | None, batch: int, on_block=None
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Read raw messages through rosbags (any storage) and decode them in batches."""
+    """Read raw messages through rosbags (any storage) and decode them in batches.
+
+    ``on_block``: see :func:`read_rig_states`.
+    """
     declared = sum(c.msgcount for c in bag.reader.connections if c.topic == topic)
     sink = ColumnSink(declared)
     empty: list[dict[str, np.ndarray]] = []
@@ -207,11 +216,14 @@ def read_via_rosbags(
             ) from err
         except Exception as err:  # noqa: BLE001 - slow path: rosbags SerdeError
             raise BagCorruptError(blame_file(bag.path), f"{topic}: cannot decode: {err}") from err
+        block_times = np.array(times, dtype=np.int64)
         if raws:
             sink.add(part)
+            if on_block is not None:
+                on_block(part, block_times, declared)
         else:
             empty.append(part)
-        stamps.append(np.array(times, dtype=np.int64))
+        stamps.append(block_times)
         done += len(raws)
         raws.clear()
         times.clear()
@@ -234,6 +246,7 @@ def read_rig_states(
     batch: int = 65536,
     fast: bool = True,
     fields=None,
+    on_block: Callable[[dict[str, np.ndarray], np.ndarray, int], None] | None = None,
 ) -> RigStateArrays:
     """Read every ``RigState`` of a bag topic into numpy arrays, fast (no message objects).
 
@@ -250,6 +263,12 @@ def read_rig_states(
         fast: allow the direct MCAP scan.
         fields: dotted field paths to decode (default: every field); the header stamp is
             always read. A replay reads only what the model needs (:data:`REPLAY_FIELDS`).
+        on_block: called after each decoded block, in file order, with ``(columns, log
+            times [ns], declared count)``, so a consumer can start on the data while the
+            read goes on (``clutch replay`` estimates meanwhile). The final arrays are these
+            blocks in this order unless their log times are out of order (then they are
+            sorted; a consumer checks the times it was given). The callback must not keep
+            the block's arrays beyond its own use of them (they may be views of the file).
 
     Raises:
         BagError: no (or more than one) RigState topic; plus everything :class:`BagReader`
@@ -284,9 +303,9 @@ def read_rig_states(
         if files is not None and storage_issues(bag.path, bag.reader.connections):
             files = None  # let rosbags read it, so the outcome is the checked reader's
         if files is not None and decoder is not None:
-            columns, stamps = read_fast(bag, topic, decoder, files)
+            columns, stamps = read_fast(bag, topic, decoder, files, on_block)
         else:
-            columns, stamps = read_via_rosbags(bag, topic, decoder, batch)
+            columns, stamps = read_via_rosbags(bag, topic, decoder, batch, on_block)
             if fields is not None:  # the per-message fallback decodes every field
                 columns = {k: v for k, v in columns.items()
                            if k in fields or k.removesuffix(".len") in fields}

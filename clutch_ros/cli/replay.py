@@ -31,7 +31,7 @@ from clutch_ros.cli.replay_adapt import AdaptiveRun, add_adapt_options, print_ad
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
-from clutch_ros.model import kernel
+from clutch_ros.model.batch import warm_up
 from clutch_ros.model.params import SPLINE_LAWS
 from clutch_ros.offline.batch import run_jobs
 from clutch_ros.offline.replay import ReplayJob
@@ -67,6 +67,10 @@ def add_parser(sub) -> None:
     p.add_argument("--recover", action="store_true",
                    help="damaged MCAP bags: replay every intact chunk and report what was "
                         "skipped (messages, time ranges) under 'recovery'")
+    p.add_argument("--no-stream", action="store_true",
+                   help="read each bag whole before estimating it (default: estimate in a "
+                        "second thread while the bag is read, when a second core is free; "
+                        "same results; never with --jobs/--cluster, whose bags use the cores)")
     p.add_argument("--json", action="store_true", help="print a JSON list, one object per bag")
     p.set_defaults(func=run)
 
@@ -103,8 +107,9 @@ def run(args) -> int:
     if args.recover and args.cluster:
         raise ClutchError("--recover writes the recovered bags to a local scratch directory; "
                           "it cannot be combined with --cluster")
+    serial = args.jobs == 1 and not args.cluster
     job = ReplayJob(params, storage=args.storage, keep_result=report is not None,
-                    topic=args.topic)
+                    topic=args.topic, pipeline=None if serial and not args.no_stream else False)
     results = []
     scratch = tempfile.TemporaryDirectory(prefix="clutch-recover-") if args.recover else None
     items, recoveries = [], []
@@ -121,11 +126,11 @@ def run(args) -> int:
     # large); in parallel, the workers return summaries only (whole results with --report)
     if adaptive.enabled:
         done = (_adaptive_job(adaptive, item, args) for item in items)
-    elif args.jobs == 1 and not args.cluster:
+    elif serial:
         done = (job(item) for item in items)
     else:
-        if not args.cluster:  # load numba and the compiled loop once, before the workers fork
-            kernel.available()
+        if not args.cluster:  # load the compiled loop once, before the workers fork
+            warm_up(params)
         done = iter(run_jobs(job, items, jobs=args.jobs, cluster=args.cluster))
     for (bag, recovery, spent), (summary, result) in zip(recoveries, done):
         if recovery is not None:

@@ -42,8 +42,11 @@ _MODULES = {
         "OutOfOrderSample", "ParameterError", "SampleRejected",
         "UnreachableTorqueError",
     ),
+    "batch": (
+        "BatchEstimator", "EstimateBatch", "estimate_batch", "warm_up",
+    ),
     "estimator": (
-        "ClutchEstimator", "Estimate", "EstimateBatch", "estimate_batch",
+        "ClutchEstimator", "Estimate",
     ),
     "fit_data": (
         "SAMPLE_BUDGET", "FitOptions", "FitRun", "IdentificationError",
@@ -112,7 +115,8 @@ __all__ = [
     # inverse
     "pressure_for_torque", "pressure_for_torque_array", "solve_pressure", "PressureSolution",
     # estimator
-    "ClutchEstimator", "Estimate", "EstimateBatch", "estimate_batch",
+    "ClutchEstimator", "Estimate", "BatchEstimator", "EstimateBatch", "estimate_batch",
+    "warm_up",
     # metrics
     "torque_accuracy", "request_accuracy", "overshoot", "undershoot", "rmse", "within_band",
     "cross_correlation", "CrossCorrelation", "hysteresis_width", "accuracy_summary", "longest_run",

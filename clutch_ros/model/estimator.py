@@ -24,9 +24,10 @@ Per sample:
 4. Accuracy = measured / modelled (NaN without a measurement or when |modelled| <
    ``accuracy_min_torque``, default 1 N m); overshoot / undershoot: accuracy > 1.1 / < 0.9.
 
-:func:`estimate_batch` gives the same result as looping :meth:`ClutchEstimator.update` over
-arrays (rejected samples raise, or with ``on_reject="skip"`` give NaN rows), running the pack
-through :func:`~clutch_ros.model.simulate.simulate`.
+:func:`~clutch_ros.model.batch.estimate_batch` gives the same result as looping
+:meth:`ClutchEstimator.update` over arrays (rejected samples raise, or with
+``on_reject="skip"`` give NaN rows), running the pack through the compiled kernel or
+:func:`~clutch_ros.model.simulate.simulate`.
 """
 
 from __future__ import annotations
@@ -36,7 +37,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from clutch_ros.model import kernel
 from clutch_ros.model.errors import (
     DuplicateSample,
     InputError,
@@ -44,10 +44,9 @@ from clutch_ros.model.errors import (
     OutOfOrderSample,
 )
 from clutch_ros.model.pack import PackModel
-from clutch_ros.model.simulate import simulate, simulate_columns
 from clutch_ros.model.slip import SlipFilter
 
-__all__ = ["ClutchEstimator", "Estimate", "EstimateBatch", "estimate_batch"]
+__all__ = ["ClutchEstimator", "Estimate"]
 
 
 @dataclass(slots=True)
@@ -195,174 +194,3 @@ class ClutchEstimator:
             acc > self.overshoot_limit, acc < self.undershoot_limit, p,
             sample.lamella_temperature, omega,
             sample.compression, self.pack.spline_correction(), reinit)
-
-
-@dataclass
-class EstimateBatch:
-    """Estimates over n samples: the fields of :class:`Estimate` as arrays.
-
-    Shapes: (n,) except ``lamella_normal_force`` and ``spline_friction_force`` (n, N).
-    ``accepted`` is False for rejected samples (their rows are NaN / False);
-    ``spline_law`` is a string.
-    """
-
-    stamp: np.ndarray
-    accepted: np.ndarray
-    reinitialised: np.ndarray
-    modelled_torque: np.ndarray
-    reference_torque: np.ndarray
-    measured_torque: np.ndarray
-    torque_accuracy: np.ndarray
-    friction_coefficient: np.ndarray
-    lamella_normal_force: np.ndarray
-    spline_friction_force: np.ndarray
-    front_pressure: np.ndarray
-    rear_pressure: np.ndarray
-    pressure_difference: np.ndarray
-    slip_speed_filtered: np.ndarray
-    overshoot: np.ndarray
-    undershoot: np.ndarray
-    actuating_pressure: np.ndarray
-    lamella_temperature: np.ndarray
-    slip_speed: np.ndarray
-    compression: np.ndarray
-    spline_correction: np.ndarray
-    spline_law: str
-
-    def __len__(self) -> int:
-        return int(self.stamp.size)
-
-
-def _rejections(t, p, temp, omega, measured):
-    finite = (np.isfinite(t) & np.isfinite(p) & ~np.isinf(temp) & np.isfinite(omega)
-              & ~np.isinf(measured))
-    prev = np.maximum.accumulate(np.where(finite, t, -np.inf))
-    prev = np.concatenate([[-np.inf], prev[:-1]])
-    accepted = finite & (t > prev)
-    kinds = np.where(~finite, 1, np.where(t == prev, 2, np.where(t < prev, 3, 0)))
-    return accepted, kinds
-
-
-def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_speed,
-                   measured_torque=None, *, max_gap_s: float = 1.0,
-                   accuracy_min_torque: float = 1.0, overshoot_limit: float = 1.1,
-                   undershoot_limit: float = 0.9, on_reject: str = "raise",
-                   model: PackModel | None = None, engine: str = "auto",
-                   per_lamella: bool = True) -> EstimateBatch:
-    """Estimate a whole series; identical to looping ``ClutchEstimator.update()``.
-
-    Inputs broadcast to ``t``'s shape (1-D stamps [s]); ``measured_torque`` None means no
-    measurement. ``on_reject``: ``"raise"`` raises the first sample's SampleRejected, like an
-    update loop that does not catch; ``"skip"`` leaves NaN rows (``accepted`` False), like one
-    that catches and continues. ``engine``: the model loop, ``"auto"`` | ``"kernel"`` |
-    ``"numpy"`` (see :func:`~clutch_ros.model.simulate.simulate`). ``per_lamella`` False:
-    ``lamella_normal_force`` and ``spline_friction_force`` are None (two (n, N) arrays fewer
-    for a long series whose per-lamella forces are not used; ``spline_correction`` is still
-    computed).
-
-    With the compiled kernel each gap-free segment runs through
-    :func:`~clutch_ros.model.simulate.simulate_columns`, which writes the outputs straight
-    into the result's arrays; otherwise through :func:`~clutch_ros.model.simulate.simulate`.
-    """
-    if on_reject not in ("raise", "skip"):
-        raise InputError(f"on_reject must be 'raise' or 'skip', got {on_reject!r}")
-    t = np.ascontiguousarray(t, dtype=float)
-    if t.ndim != 1:
-        raise InputError(f"t must be 1-D, got shape {t.shape}")
-    meas = np.nan if measured_torque is None else measured_torque
-    try:
-        p, temp, omega, meas = (_series(v, t.shape) for v in (actuating_pressure,
-                                                              lamella_temperature, slip_speed,
-                                                              meas))
-    except ValueError as err:
-        raise InputError(f"inputs do not broadcast to t's shape {t.shape}: {err}") from err
-    n = t.size
-    accepted, kinds = _rejections(t, p, temp, omega, meas)
-    if on_reject == "raise" and not accepted.all():
-        i = int(np.flatnonzero(~accepted)[0])
-        cls = {1: NonFiniteSample, 2: DuplicateSample, 3: OutOfOrderSample}[int(kinds[i])]
-        raise cls(f"sample {i} rejected (stamp {t[i]!r})")
-    n_lam = params.pack.lamella_count
-    every = bool(accepted.all())
-    # rows: kernel.OUTPUT_COLUMNS, then the filtered slip; NaN where a sample is rejected
-    cols = np.empty((_N_COLS, n)) if every else np.full((_N_COLS, n), np.nan)
-    lamellas = ((np.empty if every else _nan)((n, n_lam)) for _ in range(2)) \
-        if per_lamella else (None, None)
-    normal, spline = lamellas
-    reinit = np.zeros(n, dtype=bool)
-    idx = np.arange(n) if every else np.flatnonzero(accepted)
-    if idx.size:
-        ta = t[idx]
-        starts = np.concatenate([[0], np.flatnonzero(np.diff(ta) > max_gap_s) + 1, [ta.size]])
-        model = model if model is not None else PackModel(params)
-        for a, b in zip(starts[:-1].tolist(), starts[1:].tolist()):
-            rows = idx[a:b]
-            reinit[rows[0]] = True
-            _segment(params, model, engine, t, p, temp, omega, rows, cols, normal, spline)
-    mod = cols[_TORQUE]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ok = accepted & ~np.isnan(meas) & (np.abs(mod) >= accuracy_min_torque)
-        acc = np.where(ok, meas / np.where(ok, mod, 1.0), np.nan)
-    with np.errstate(invalid="ignore"):
-        over, under = acc > overshoot_limit, acc < undershoot_limit
-    keep = np.copy if every else (lambda x: np.where(accepted, x, np.nan))
-    return EstimateBatch(
-        stamp=t.copy(), accepted=accepted, reinitialised=reinit, modelled_torque=mod,
-        reference_torque=cols[_REFERENCE], measured_torque=keep(meas),
-        torque_accuracy=acc, friction_coefficient=cols[_MU],
-        lamella_normal_force=normal, spline_friction_force=spline,
-        front_pressure=cols[_FRONT], rear_pressure=cols[_REAR],
-        pressure_difference=cols[_FRONT] - cols[_REAR], slip_speed_filtered=cols[_SLIP],
-        overshoot=over, undershoot=under, actuating_pressure=keep(p),
-        lamella_temperature=cols[_TEMP], slip_speed=keep(omega), compression=cols[_Z],
-        spline_correction=cols[_CORRECTION], spline_law=params.spline.law)
-
-
-_TORQUE, _REFERENCE, _MU, _FRONT, _REAR, _Z, _TEMP, _FILM, _CORRECTION = range(9)
-_SLIP = len(kernel.OUTPUT_COLUMNS)
-_N_COLS = _SLIP + 1
-
-
-def _series(value, shape) -> np.ndarray:
-    """``value`` as a float64 array of ``shape``: no copy when it already is one."""
-    arr = np.asarray(value, dtype=float)
-    if arr.shape == shape and arr.flags.c_contiguous:
-        return arr
-    return np.broadcast_to(arr, shape).copy()
-
-
-def _nan(shape) -> np.ndarray:
-    return np.full(shape, np.nan)
-
-
-def _segment(params, model, engine, t, p, temp, omega, rows, cols, normal, spline) -> None:
-    """Estimate the gap-free accepted ``rows`` into ``cols`` (and the per-lamella arrays)."""
-    first, count = int(rows[0]), rows.size
-    if int(rows[-1]) - first == count - 1:  # contiguous: views, written in place
-        part = slice(first, first + count)
-        ts, ps, temps, omegas = t[part], p[part], temp[part], omega[part]
-        out, nrm, spl, offset = cols, normal, spline, first
-    else:
-        ts, ps, temps, omegas = t[rows], p[rows], temp[rows], omega[rows]
-        out = np.empty((_N_COLS, count))
-        nrm, spl = (None, None) if normal is None else (np.empty((count, normal.shape[1])),
-                                                        np.empty((count, normal.shape[1])))
-        offset = 0
-    omega_f = kernel.lowpass_series(ts, omegas, params.slip.filter_time_constant, engine)
-    out[_SLIP, offset:offset + count] = omega_f
-    if not simulate_columns(params, ts, ps, omega_f, temps, out, model=model, normal=nrm,
-                            forces=spl, offset=offset, engine=engine):
-        sim = simulate(params, ts, ps, omega_f, temps, model=model, engine=engine)
-        dest = out[:, offset:offset + count]
-        for i, name in enumerate(kernel.OUTPUT_COLUMNS[:-1]):
-            dest[i] = getattr(sim, name)
-        weights = np.arange(1, sim.spline_force.shape[1] + 1, dtype=float)
-        dest[_CORRECTION] = sim.spline_force @ weights / (weights.size * params.pack.piston_area)
-        if nrm is not None:
-            nrm[offset:offset + count] = sim.normal_force
-            spl[offset:offset + count] = sim.spline_force
-    if out is not cols:
-        cols[:, rows] = out
-        if normal is not None:
-            normal[rows] = nrm
-            spline[rows] = spl

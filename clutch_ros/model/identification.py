@@ -2,7 +2,7 @@
 
 Units: time [s], pressure [Pa], temperature [°C], slip speed [rad/s], torque [N m]. The model
 is the estimator's own (:func:`~clutch_ros.model.simulate.simulate` on the slip speed filtered
-like :func:`~clutch_ros.model.estimator.estimate_batch` does), so fitted parameters deploy to
+like :func:`~clutch_ros.model.batch.estimate_batch` does), so fitted parameters deploy to
 the live nodes unchanged.
 
 What is fitted (:data:`FREE_PARAMETERS`, dotted keys; ``fixed=`` removes any of them):
@@ -63,7 +63,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from clutch_ros.model import kernel
-from clutch_ros.model.estimator import estimate_batch
+from clutch_ros.model.batch import estimate_batch
 from clutch_ros.model.fit_data import (
     SAMPLE_BUDGET,
     FitOptions,

@@ -1,7 +1,7 @@
 """Compiled per-sample loop of the pack model (numba), used by :func:`simulate` when available.
 
 :func:`~clutch_ros.model.simulate.simulate` (and so replay, fit and
-:func:`~clutch_ros.model.estimator.estimate_batch`) runs its per-sample loop here with
+:func:`~clutch_ros.model.batch.estimate_batch`) runs its per-sample loop here with
 ``engine="kernel"`` or ``"auto"`` (the default); the numpy path
 (:meth:`~clutch_ros.model.pack.PackModel._advance`, one Python call per sample) stays the
 reference (``engine="numpy"``) and the fallback. The compiled loop performs the same steps in

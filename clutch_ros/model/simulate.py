@@ -106,14 +106,17 @@ def as_series(t, *values, names=("actuating_pressure", "slip_speed", "lamella_te
 
 def simulate(params, t, actuating_pressure, slip_speed, lamella_temperature,
              initial_pressure: float | None = None, *, model: PackModel | None = None,
-             engine: str = "auto") -> SimulationResult:
+             engine: str = "auto", reset: bool = True) -> SimulationResult:
     """Simulate the pack over stamps ``t`` [s] (module docstring); return the outputs.
 
     ``actuating_pressure`` [Pa], ``slip_speed`` [rad/s] and ``lamella_temperature`` [°C]
     are arrays of t's shape or scalars; a NaN temperature means "not measured" (the model's
     thermal state is used). ``model`` (optional) is used instead of a fresh
     :class:`PackModel` (its dt cache is reused; its state is reset and left at the end).
-    ``engine``: ``"auto"`` | ``"kernel"`` | ``"numpy"`` (module docstring).
+    ``engine``: ``"auto"`` | ``"kernel"`` | ``"numpy"`` (module docstring). ``reset`` False
+    (with ``model``): no reset, sample 0 is the state ``model`` is in (a series continued
+    from where the last one ended; its sample-0 spline force reads 0, ``initial_pressure`` is
+    not used).
     """
     kernel.check_engine(engine)
     t, press, omega, temp = as_series(t, actuating_pressure, slip_speed, lamella_temperature)
@@ -121,8 +124,9 @@ def simulate(params, t, actuating_pressure, slip_speed, lamella_temperature,
         model = PackModel(params)
     elif model.params != params:
         model.set_params(params)
-    p0 = press[0] if initial_pressure is None else float(initial_pressure)
-    model.reset(p0, temp[0], omega[0])
+    if reset:
+        p0 = press[0] if initial_pressure is None else float(initial_pressure)
+        model.reset(p0, temp[0], omega[0])
     lay = model.layout
     n = t.size
     sign = sign_factor(omega, params.friction.sign_speed)
@@ -166,7 +170,7 @@ def _table(model, t):
 
 def simulate_columns(params, t, actuating_pressure, slip_speed, lamella_temperature, outs, *,
                      model: PackModel, normal=None, forces=None, offset: int = 0,
-                     engine: str = "auto") -> bool:
+                     engine: str = "auto", reset: bool = True) -> bool:
     """:func:`simulate`'s outputs written straight into arrays by the compiled kernel.
 
     For long series when only some outputs are needed: no state history, no per-lamella
@@ -176,7 +180,8 @@ def simulate_columns(params, t, actuating_pressure, slip_speed, lamella_temperat
     :data:`~clutch_ros.model.kernel.OUTPUT_COLUMNS` in columns ``offset:offset + n``,
     ``normal`` / ``forces`` (≥ offset + n, N) the normal [N] and spline forces [N] in rows
     ``offset:offset + n``. ``model`` is reset
-    to the equilibrium at the first sample, as :func:`simulate` does. Returns False, having
+    to the equilibrium at the first sample, as :func:`simulate` does (``reset`` False: it
+    continues from the state it is in, which sample 0 reports). Returns False, having
     done nothing, when the kernel cannot run it (``engine="numpy"``, numba unavailable, or a
     law whose forces are not kept per step: ``ff_t_printed`` / ``ff_v_printed``); the caller
     then uses :func:`simulate`. Same results as :func:`simulate` to rounding
@@ -189,8 +194,9 @@ def simulate_columns(params, t, actuating_pressure, slip_speed, lamella_temperat
         return False
     if model.params != params:
         model.set_params(params)
-    model.reset(float(actuating_pressure[0]), float(lamella_temperature[0]),
-                float(slip_speed[0]))
+    if reset:
+        model.reset(float(actuating_pressure[0]), float(lamella_temperature[0]),
+                    float(slip_speed[0]))
     dts, table, inverse = _table(model, t)
     return kernel.run_columns(model, table, inverse, dts, actuating_pressure, slip_speed,
                               lamella_temperature, outs, normal, forces, offset, engine)

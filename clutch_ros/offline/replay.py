@@ -10,7 +10,9 @@ The back end of ``clutch replay`` (and of the golden regression data and the ben
 3. :func:`write_estimates` writes one ``ClutchEstimate`` per sample the node would publish
    (accepted, finite torque) with the input's header stamp and frame id, as the node does.
 
-Deterministic: no clocks, no threads; the same bag and parameters give the same bytes.
+Steps 1 and 2 overlap when a second core is free (``pipeline``): the estimate runs in a worker
+thread on the blocks already read (:mod:`~clutch_ros.offline.streaming`), with the same result.
+Deterministic: the same bag and parameters give the same bytes, streamed or not.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from clutch_ros.bag.rig_states import REPLAY_FIELDS, RigStateArrays, read_rig_st
 from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, Typestore
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.model import accuracy_summary, estimate_batch, within_band
+from clutch_ros.offline.streaming import StreamedEstimate, model_inputs, spare_core
 
 __all__ = [
     "ESTIMATE_FIELDS",
@@ -61,7 +64,9 @@ class ReplayResult:
         summary: ``samples``, ``accepted``, ``skipped``, ``law``, ``rmse_nm``,
             ``reference_rmse_nm``, ``within_10pct`` (and ``reference_within_10pct`` of the
             Eq. 1 reference), ``max_accuracy``, ``min_accuracy``, ``read_s`` and
-            ``estimate_s`` [s].
+            ``estimate_s`` [s], ``streamed`` (the estimate overlapped the read; then
+            ``read_s`` includes the overlapped part of the estimate and ``estimate_s`` is
+            what was left after the read), ``streamed_pieces`` (how many pieces).
 
     """
 
@@ -73,8 +78,7 @@ class ReplayResult:
 
 def stamps_s(rig: RigStateArrays) -> np.ndarray:
     """Header stamps [s] computed as the node does: ``sec + nanosec * 1e-9`` (float64)."""
-    sec = rig.columns["header.stamp.sec"].astype(np.float64)
-    return sec + rig.columns["header.stamp.nanosec"].astype(np.float64) * 1e-9
+    return model_inputs(rig.columns)[0]
 
 
 def published_rows(batch: Any) -> np.ndarray:
@@ -90,13 +94,15 @@ def replay_bag(
     store: Typestore | None = None,
     fields: Any = None,
     per_lamella: bool = True,
+    pipeline: bool | None = None,
 ) -> ReplayResult:
     """Run the estimator with ``params`` over the RigState stream of ``bag``.
 
     ``fields``: the RigState fields read into ``result.rig`` (default every field;
     :data:`~clutch_ros.bag.rig_states.REPLAY_FIELDS` is what the estimate needs, a smaller
     and faster read). ``per_lamella`` False: the batch has no per-lamella force arrays (two
-    (n, N) arrays fewer; nothing written or plotted needs them).
+    (n, N) arrays fewer; nothing written or plotted needs them). ``pipeline``: estimate
+    while reading (module docstring); default: when this process has a second core.
 
     Raises:
         BagError: no RigState topic, or no messages; plus everything
@@ -104,23 +110,24 @@ def replay_bag(
 
     """
     path = Path(bag)
+    streamed = StreamedEstimate(params, per_lamella) if (
+        spare_core() if pipeline is None else pipeline) else None
     start = time.perf_counter()
-    rig = read_rig_states(path, topic, store=store, fields=fields)
+    try:
+        rig = read_rig_states(path, topic, store=store, fields=fields, on_block=streamed)
+    except BaseException:
+        if streamed is not None:
+            streamed.close()
+        raise
     read_s = time.perf_counter() - start
+    start = time.perf_counter()
+    batch = streamed.result() if streamed is not None else None
     if len(rig) == 0:
         raise BagError(path, f"no RigState messages on {rig.topic}")
-    measured = np.where(rig.has_measured_torque.astype(bool), rig.measured_torque, np.nan)
-    start = time.perf_counter()
-    batch = estimate_batch(
-        params,
-        stamps_s(rig),
-        rig.actuating_pressure,
-        rig.lamella_temperature,
-        rig.slip_speed,
-        measured,
-        on_reject="skip",
-        per_lamella=per_lamella,
-    )
+    if batch is None:  # not streamed, or the read reordered the blocks
+        t, p, temp, omega, measured = model_inputs(rig.columns)
+        batch = estimate_batch(params, t, p, temp, omega, measured, on_reject="skip",
+                               per_lamella=per_lamella)
     estimate_s = time.perf_counter() - start
     ok = batch.accepted
     summary = accuracy_summary(
@@ -133,6 +140,8 @@ def replay_bag(
             batch.measured_torque[ok], batch.reference_torque[ok], 0.1, 0.05
         ),
         samples=len(rig),
+        streamed=streamed is not None and streamed.valid,
+        streamed_pieces=streamed.pieces if streamed is not None and streamed.valid else 0,
         accepted=int(ok.sum()),
         skipped=int((~ok).sum()),
         read_s=read_s,
@@ -147,7 +156,8 @@ class ReplayJob:
 
     Called with ``(bag, out)``: replays ``bag`` with ``params``, writes the estimates to
     ``out`` (unless None, with ``storage``; ``topic``: the RigState topic, default the bag's
-    only one) and returns ``(summary, result)``: the summary
+    only one; ``pipeline``: as :func:`replay_bag`, False in pool and cluster workers) and
+    returns ``(summary, result)``: the summary
     gains ``seconds`` (wall time of this bag [s]), ``samples_per_s`` and, when written,
     ``estimates_written`` and ``output``; ``result`` is the whole :class:`ReplayResult` when
     ``keep_result`` (a report needs it), else None (only the summary travels back).
@@ -157,6 +167,7 @@ class ReplayJob:
     storage: str = "mcap"
     keep_result: bool = False
     topic: str | None = None
+    pipeline: bool | None = None
 
     def __call__(self, item: tuple[Path, Path | None]) -> tuple[dict[str, Any], Any]:
         """Replay one ``(bag, out)`` pair."""
@@ -165,7 +176,8 @@ class ReplayJob:
         # a report plots every field; otherwise read only what the estimate needs
         fields = None if self.keep_result else REPLAY_FIELDS
         result = replay_bag(bag, self.params, topic=self.topic, fields=fields,
-                            per_lamella=self.keep_result or out is not None)
+                            per_lamella=self.keep_result or out is not None,
+                            pipeline=self.pipeline)
         summary = result.summary
         seconds = time.perf_counter() - start
         summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))

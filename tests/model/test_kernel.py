@@ -26,8 +26,8 @@ import pytest
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model import PackModel, kernel, make_sequence, simulate
+from clutch_ros.model.batch import estimate_batch
 from clutch_ros.model.errors import InputError
-from clutch_ros.model.estimator import estimate_batch
 from clutch_ros.model.sequences import SEQUENCE_NAMES
 
 LAWS = sorted(kernel.LAW_CODES)

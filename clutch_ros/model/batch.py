@@ -1,0 +1,336 @@
+"""The estimator over whole series: :func:`estimate_batch`, and :class:`BatchEstimator` by pieces.
+
+:func:`estimate_batch` gives the same result as looping
+:meth:`~clutch_ros.model.estimator.ClutchEstimator.update` over arrays (rejected samples raise,
+or with ``on_reject="skip"`` give NaN rows): the same validation, the same re-initialisation
+after a gap longer than ``max_gap_s``, the same slip filter and pack steps, run per gap-free
+segment by the compiled kernel (:func:`~clutch_ros.model.simulate.simulate_columns`) or the
+numpy loop (:func:`~clutch_ros.model.simulate.simulate`).
+
+:class:`BatchEstimator` is the same computation fed piece by piece, so a reader can hand over
+samples while it is still reading (``clutch replay`` estimates in a second thread while the
+bag is read; the kernel runs without the GIL). :func:`estimate_batch` is one feed of the whole
+series; a series fed in any number of pieces gives the same arrays: bit for bit with the
+kernel's output loop (every sample's arithmetic is scalar and in the same order; all laws
+but ``ff_t_printed`` / ``ff_v_printed``), to rounding with the numpy engine and the printed
+laws (their vectorised outputs may round the last bit differently at piece ends;
+tests/model/test_batch.py states the tolerances). What carries across pieces: the largest
+finite stamp so far (rejections), the last accepted sample (gap test, segment continuation),
+the filtered slip (the filter continues) and the pack state (the segment continues without a
+reset).
+
+Shapes: every :class:`EstimateBatch` array is (n,) except ``lamella_normal_force`` and
+``spline_friction_force`` (n, N), N = ``params.pack.lamella_count``. Units as
+:class:`~clutch_ros.model.estimator.Estimate`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from clutch_ros.model import kernel
+from clutch_ros.model.errors import DuplicateSample, InputError, NonFiniteSample, OutOfOrderSample
+from clutch_ros.model.pack import PackModel
+from clutch_ros.model.simulate import simulate, simulate_columns
+
+__all__ = ["BatchEstimator", "EstimateBatch", "estimate_batch", "warm_up"]
+
+
+@dataclass
+class EstimateBatch:
+    """Estimates over n samples: the fields of :class:`Estimate` as arrays.
+
+    Shapes: (n,) except ``lamella_normal_force`` and ``spline_friction_force`` (n, N).
+    ``accepted`` is False for rejected samples (their rows are NaN / False);
+    ``spline_law`` is a string.
+    """
+
+    stamp: np.ndarray
+    accepted: np.ndarray
+    reinitialised: np.ndarray
+    modelled_torque: np.ndarray
+    reference_torque: np.ndarray
+    measured_torque: np.ndarray
+    torque_accuracy: np.ndarray
+    friction_coefficient: np.ndarray
+    lamella_normal_force: np.ndarray
+    spline_friction_force: np.ndarray
+    front_pressure: np.ndarray
+    rear_pressure: np.ndarray
+    pressure_difference: np.ndarray
+    slip_speed_filtered: np.ndarray
+    overshoot: np.ndarray
+    undershoot: np.ndarray
+    actuating_pressure: np.ndarray
+    lamella_temperature: np.ndarray
+    slip_speed: np.ndarray
+    compression: np.ndarray
+    spline_correction: np.ndarray
+    spline_law: str
+
+    def __len__(self) -> int:
+        return int(self.stamp.size)
+
+
+_TORQUE, _REFERENCE, _MU, _FRONT, _REAR, _Z, _TEMP, _FILM, _CORRECTION = range(9)
+_SLIP = len(kernel.OUTPUT_COLUMNS)
+_N_COLS = _SLIP + 1
+_INPUTS = ("t", "p", "temp", "omega", "meas")
+_REJECTED = {1: NonFiniteSample, 2: DuplicateSample, 3: OutOfOrderSample}
+
+
+def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_speed,
+                   measured_torque=None, *, max_gap_s: float = 1.0,
+                   accuracy_min_torque: float = 1.0, overshoot_limit: float = 1.1,
+                   undershoot_limit: float = 0.9, on_reject: str = "raise",
+                   model: PackModel | None = None, engine: str = "auto",
+                   per_lamella: bool = True) -> EstimateBatch:
+    """Estimate a whole series; identical to looping ``ClutchEstimator.update()``.
+
+    Inputs broadcast to ``t``'s shape (1-D stamps [s]); ``measured_torque`` None means no
+    measurement. ``on_reject``: ``"raise"`` raises the first sample's SampleRejected, like an
+    update loop that does not catch; ``"skip"`` leaves NaN rows (``accepted`` False), like one
+    that catches and continues. ``engine``: the model loop, ``"auto"`` | ``"kernel"`` |
+    ``"numpy"`` (see :func:`~clutch_ros.model.simulate.simulate`). ``per_lamella`` False:
+    ``lamella_normal_force`` and ``spline_friction_force`` are None (two (n, N) arrays fewer
+    for a long series whose per-lamella forces are not used; ``spline_correction`` is still
+    computed). One :meth:`BatchEstimator.feed` of the whole series.
+    """
+    t = np.ascontiguousarray(t, dtype=float)
+    if t.ndim != 1:
+        raise InputError(f"t must be 1-D, got shape {t.shape}")
+    stream = BatchEstimator(params, t.size, max_gap_s=max_gap_s,
+                            accuracy_min_torque=accuracy_min_torque,
+                            overshoot_limit=overshoot_limit, undershoot_limit=undershoot_limit,
+                            on_reject=on_reject, model=model, engine=engine,
+                            per_lamella=per_lamella)
+    stream.feed(t, actuating_pressure, lamella_temperature, slip_speed,
+                np.nan if measured_torque is None else measured_torque)
+    return stream.result()
+
+
+def warm_up(params) -> bool:
+    """Load the compiled kernel's machine code now; return whether the kernel is in use.
+
+    numba loads a compiled function from its disk cache on the first call (~0.4 s with the
+    numba import). A parent that forks workers (``clutch replay --jobs N``) calls this
+    first, so every worker inherits the loaded code instead of loading it again. Estimates
+    three samples with ``params`` (any law: the loop is one compiled function) and discards
+    them.
+    """
+    if not kernel.available():
+        return False
+    estimate_batch(params, [0.0, 1e-3, 2e-3], 1e5, np.nan, 1.0, per_lamella=False)
+    return True
+
+
+class BatchEstimator:
+    """:func:`estimate_batch` fed piece by piece (module docstring); same arguments.
+
+    Args:
+        params: :class:`~clutch_ros.model.params.ClutchParams`.
+        capacity: expected number of samples (the arrays grow when more are fed).
+
+    ``feed()`` pieces in stream order, then ``result()`` once. Not thread-safe: one feeder at
+    a time (``clutch replay`` feeds from one worker thread, in order).
+    """
+
+    def __init__(self, params, capacity: int = 0, *, max_gap_s: float = 1.0,
+                 accuracy_min_torque: float = 1.0, overshoot_limit: float = 1.1,
+                 undershoot_limit: float = 0.9, on_reject: str = "raise",
+                 model: PackModel | None = None, engine: str = "auto",
+                 per_lamella: bool = True):
+        if on_reject not in ("raise", "skip"):
+            raise InputError(f"on_reject must be 'raise' or 'skip', got {on_reject!r}")
+        kernel.check_engine(engine)
+        self.params, self.engine, self.on_reject = params, engine, on_reject
+        self.max_gap_s = float(max_gap_s)
+        self.accuracy_min_torque = float(accuracy_min_torque)
+        self.limits = (float(overshoot_limit), float(undershoot_limit))
+        self.model = model
+        self.lamellas = params.pack.lamella_count if per_lamella else 0
+        self.n = 0  # samples fed
+        self._prev_max = -np.inf  # largest finite stamp fed [s]
+        self._last: int | None = None  # row of the last accepted sample
+        self._alloc(max(int(capacity), 1))
+
+    def _alloc(self, size: int) -> None:
+        old = getattr(self, "_in", None)
+        self._in = {k: np.empty(size) for k in _INPUTS}
+        self.cols = np.empty((_N_COLS, size))
+        self.accepted = np.zeros(size, dtype=bool)
+        self.reinit = np.zeros(size, dtype=bool)
+        self.normal = np.empty((size, self.lamellas)) if self.lamellas else None
+        self.spline = np.empty((size, self.lamellas)) if self.lamellas else None
+        if old is not None:  # grown: keep what was fed
+            n = self.n
+            for k in _INPUTS:
+                self._in[k][:n] = old[k][:n]
+            self.cols[:, :n], self.accepted[:n], self.reinit[:n] = self._old
+            if self.lamellas:
+                self.normal[:n], self.spline[:n] = self._old_lamellas
+
+    def _grow(self, needed: int) -> None:
+        n = self.n
+        self._old = (self.cols[:, :n], self.accepted[:n], self.reinit[:n])
+        if self.lamellas:
+            self._old_lamellas = (self.normal[:n], self.spline[:n])
+        self._alloc(max(needed, 2 * self.cols.shape[1]))
+        del self._old
+        self.__dict__.pop("_old_lamellas", None)
+
+    def feed(self, t, actuating_pressure, lamella_temperature, slip_speed,
+             measured_torque=np.nan) -> None:
+        """Estimate the next samples of the stream.
+
+        Stamps [s] (1-D), pressure [Pa], temperature [°C] (NaN: not measured), slip [rad/s],
+        measured torque [N m] (NaN: none); inputs broadcast to the stamps' shape.
+
+        Raises:
+            InputError: shapes do not broadcast.
+            SampleRejected: (``on_reject="raise"``) the first rejected sample of this piece.
+
+        """
+        t = np.asarray(t, dtype=float)
+        if t.ndim != 1:
+            raise InputError(f"t must be 1-D, got shape {t.shape}")
+        a, m = self.n, t.size
+        b = a + m
+        if b > self.cols.shape[1]:
+            self._grow(b)
+        try:
+            vals = [np.broadcast_to(np.asarray(v, dtype=float), t.shape) for v in
+                    (t, actuating_pressure, lamella_temperature, slip_speed, measured_torque)]
+        except ValueError as err:
+            raise InputError(f"inputs do not broadcast to t's shape {t.shape}: {err}") from err
+        for key, v in zip(_INPUTS, vals):
+            self._in[key][a:b] = v
+        ins = {k: self._in[k][a:b] for k in _INPUTS}
+        ok, kinds = self._rejections(ins)
+        if self.on_reject == "raise" and not ok.all():
+            i = int(np.flatnonzero(~ok)[0])
+            raise _REJECTED[int(kinds[i])](f"sample {a + i} rejected (stamp {t[i]!r})")
+        self.accepted[a:b] = ok
+        self.reinit[a:b] = False
+        self.n = b
+        if not ok.all():
+            bad = a + np.flatnonzero(~ok)
+            self.cols[:, bad] = np.nan
+            if self.lamellas:
+                self.normal[bad] = np.nan
+                self.spline[bad] = np.nan
+        idx = a + np.flatnonzero(ok)
+        if idx.size:
+            self._estimate(idx)
+
+    def _rejections(self, ins: dict) -> tuple[np.ndarray, np.ndarray]:
+        """Return accepted flags and reject kinds (1 non-finite, 2 repeat, 3 older) of a piece."""
+        t = ins["t"]
+        finite = (np.isfinite(t) & np.isfinite(ins["p"]) & ~np.isinf(ins["temp"])
+                  & np.isfinite(ins["omega"]) & ~np.isinf(ins["meas"]))
+        prev = np.maximum.accumulate(np.where(finite, t, -np.inf))
+        prev = np.concatenate([[self._prev_max], np.maximum(prev[:-1], self._prev_max)])
+        if t.size:
+            self._prev_max = max(self._prev_max, float(prev[-1]), float(np.where(
+                finite[-1], t[-1], -np.inf)))
+        accepted = finite & (t > prev)
+        kinds = np.where(~finite, 1, np.where(t == prev, 2, np.where(t < prev, 3, 0)))
+        return accepted, kinds
+
+    def _estimate(self, idx: np.ndarray) -> None:
+        """Run the accepted rows ``idx`` (global, increasing) segment by segment."""
+        t = self._in["t"]
+        ta = t[idx]
+        breaks = np.flatnonzero(np.diff(ta) > self.max_gap_s) + 1
+        cont = self._last is not None and not ta[0] - t[self._last] > self.max_gap_s
+        starts = np.concatenate([[0], breaks, [ta.size]])
+        if self.model is None:
+            self.model = PackModel(self.params)
+        for k, (s, e) in enumerate(zip(starts[:-1].tolist(), starts[1:].tolist())):
+            rows = idx[s:e]
+            if k == 0 and cont:
+                self._segment(np.concatenate([[self._last], rows]), True)
+            else:
+                self.reinit[rows[0]] = True
+                self._segment(rows, False)
+        self._last = int(idx[-1])
+
+    def _segment(self, rows: np.ndarray, cont: bool) -> None:
+        """Estimate the gap-free accepted ``rows`` into the output arrays.
+
+        ``cont``: ``rows[0]`` is the previous piece's last accepted sample, already estimated;
+        the filter and the pack continue from it (no reset) and its outputs are kept.
+        """
+        params, cols, nrm_all, spl_all = self.params, self.cols, self.normal, self.spline
+        keep = (cols[:, rows[0]].copy(), None if nrm_all is None else nrm_all[rows[0]].copy(),
+                None if spl_all is None else spl_all[rows[0]].copy()) if cont else None
+        first, count = int(rows[0]), rows.size
+        ins = self._in
+        if int(rows[-1]) - first == count - 1:  # contiguous: views, written in place
+            part = slice(first, first + count)
+            ts, ps, temps, omegas = (ins[k][part] for k in ("t", "p", "temp", "omega"))
+            out, nrm, spl, offset = cols, nrm_all, spl_all, first
+        else:
+            ts, ps, temps, omegas = (ins[k][rows] for k in ("t", "p", "temp", "omega"))
+            out = np.empty((_N_COLS, count))
+            nrm, spl = (None, None) if nrm_all is None else (
+                np.empty((count, self.lamellas)), np.empty((count, self.lamellas)))
+            offset = 0
+        if cont:  # the filter continues from the last filtered value, not from u[0]
+            omegas = omegas.copy()
+            omegas[0] = keep[0][_SLIP]
+        omega_f = kernel.lowpass_series(ts, omegas, params.slip.filter_time_constant,
+                                        self.engine)
+        out[_SLIP, offset:offset + count] = omega_f
+        if not simulate_columns(params, ts, ps, omega_f, temps, out, model=self.model,
+                                normal=nrm, forces=spl, offset=offset, engine=self.engine,
+                                reset=not cont):
+            sim = simulate(params, ts, ps, omega_f, temps, model=self.model,
+                           engine=self.engine, reset=not cont)
+            dest = out[:, offset:offset + count]
+            for i, name in enumerate(kernel.OUTPUT_COLUMNS[:-1]):
+                dest[i] = getattr(sim, name)
+            weights = np.arange(1, sim.spline_force.shape[1] + 1, dtype=float)
+            dest[_CORRECTION] = sim.spline_force @ weights / (weights.size
+                                                              * params.pack.piston_area)
+            if nrm is not None:
+                nrm[offset:offset + count] = sim.normal_force
+                spl[offset:offset + count] = sim.spline_force
+        if out is not cols:
+            cols[:, rows] = out
+            if nrm_all is not None:
+                nrm_all[rows] = nrm
+                spl_all[rows] = spl
+        if cont:  # sample rows[0] belongs to the previous piece: its outputs stay as they were
+            cols[:, rows[0]] = keep[0]
+            if nrm_all is not None:
+                nrm_all[rows[0]], spl_all[rows[0]] = keep[1], keep[2]
+
+    def result(self) -> EstimateBatch:
+        """Return the :class:`EstimateBatch` of everything fed (views of this object's arrays)."""
+        n = self.n
+        ins = {k: v[:n] for k, v in self._in.items()}
+        cols, accepted = self.cols[:, :n], self.accepted[:n]
+        meas = ins["meas"]
+        mod = cols[_TORQUE]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ok = accepted & ~np.isnan(meas) & (np.abs(mod) >= self.accuracy_min_torque)
+            acc = np.where(ok, meas / np.where(ok, mod, 1.0), np.nan)
+        with np.errstate(invalid="ignore"):
+            over, under = acc > self.limits[0], acc < self.limits[1]
+        every = bool(accepted.all())
+        keep = np.copy if every else (lambda x: np.where(accepted, x, np.nan))
+        lam = (self.normal[:n], self.spline[:n]) if self.lamellas else (None, None)
+        return EstimateBatch(
+            stamp=ins["t"].copy(), accepted=accepted, reinitialised=self.reinit[:n],
+            modelled_torque=mod, reference_torque=cols[_REFERENCE], measured_torque=keep(meas),
+            torque_accuracy=acc, friction_coefficient=cols[_MU],
+            lamella_normal_force=lam[0], spline_friction_force=lam[1],
+            front_pressure=cols[_FRONT], rear_pressure=cols[_REAR],
+            pressure_difference=cols[_FRONT] - cols[_REAR], slip_speed_filtered=cols[_SLIP],
+            overshoot=over, undershoot=under, actuating_pressure=keep(ins["p"]),
+            lamella_temperature=cols[_TEMP], slip_speed=keep(ins["omega"]),
+            compression=cols[_Z], spline_correction=cols[_CORRECTION],
+            spline_law=self.params.spline.law)
