@@ -161,6 +161,14 @@ class PackModel:
 
     # -- construction -----------------------------------------------------------------
     def _configure(self, params) -> None:
+        old = self.__dict__.get("params")
+        # the discretisation (and the law's per-dt matrices) depends on the pack and the
+        # spline law only: new friction or thermal parameters (the adaptation's friction
+        # scale, about once a second live) keep the cache instead of paying ~10 expm and
+        # box set-ups (~0.3 ms each) on the next steps, a latency spike of several ms
+        kept = (self._cache, self._last_key, self._last_entry) if (
+            old is not None and old.pack == params.pack and old.spline == params.spline) \
+            else None
         self.params = params
         pk, fr = params.pack, params.friction
         n = pk.lamella_count
@@ -193,6 +201,8 @@ class PackModel:
         self._cache: OrderedDict[int, _Entry] = OrderedDict()
         self._last_key = None
         self._last_entry = None
+        if kept is not None:
+            self._cache, self._last_key, self._last_entry = kept
         self._area = pk.piston_area
         self._c2k = 2.0 * pk.effective_radius * pk.lamella_stiffness
         self._c2n = 2.0 * pk.effective_radius * n

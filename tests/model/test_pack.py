@@ -220,3 +220,38 @@ def test_discretisation_cache_evicts_least_recently_used(flexiforce):
     assert model.discretisation(1e-3) is common
     assert sorted(model._cache) == [100, 300]  # keys in units of dt_resolution (10 µs)
     assert_allclose(common.M, PackModel(flexiforce).discretisation(1e-3).M, rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("law", ["ff_t", "coulomb"])
+def test_new_friction_keeps_the_discretisation_cache_and_the_same_steps(flexiforce, law):
+    """The adaptation's μ scale (friction only) keeps the cached ZOH and box matrices.
+
+    They depend on the pack and the spline law only; a model whose cache is emptied after the
+    change (everything recomputed) must step to the same bits. A new spline gain or pack
+    changes the matrices: the cache is rebuilt then.
+    """
+    base = flexiforce.with_law(law)
+    rng = np.random.default_rng(5)
+    dts = 1e-3 + rng.uniform(-5e-5, 5e-5, 400)  # a jittery 1 kHz stamp: ~10 cache entries
+    kept, rebuilt = PackModel(base), PackModel(base)
+    for model in (kept, rebuilt):
+        model.reset(20e5, 60.0, W10)
+    out = {}
+    for model in (kept, rebuilt):
+        rows = []
+        for k, dt in enumerate(dts):
+            if k == 200:
+                entry = model.discretisation(1e-3)
+                model.set_params(base.replace(**{"friction.mu_ref": 1.07 * base.friction.mu_ref,
+                                                 "friction.mu_min": 1.07 * base.friction.mu_min}))
+                if model is kept:
+                    assert model.discretisation(1e-3) is entry  # no new expm
+                else:
+                    model._cache.clear()
+                    model._last_key = model._last_entry = None
+            rows.append(model.step(float(dt), 20e5 + 1e5 * math.sin(k / 30), W10, 60.0).torque)
+        out[id(model)] = np.array(rows)
+    np.testing.assert_array_equal(out[id(kept)], out[id(rebuilt)])
+    entry = kept.discretisation(1e-3)
+    kept.set_params(base.replace(**{"clutch.lamella_damping": 2 * base.pack.lamella_damping}))
+    assert kept.discretisation(1e-3) is not entry  # new pack: recomputed
