@@ -246,6 +246,9 @@ class TorqueController:
         self._moved = True  # the request changed since the last tick
         # [s] the torque measurement has been missing this long (none seen yet: forever)
         self._missing_for = math.inf
+        # the first inversion imports scipy.optimize (0.2-0.7 s): here, at start, not in the
+        # control tick of the first step (a node stalled that long there, then fail-safe)
+        solve_pressure(params, 1.0, 20.0, 1.0)
 
     def set_base_params(self, params) -> None:
         """Replace the model parameters (scale 1); the adapted scales are re-applied."""
