@@ -38,9 +38,11 @@ Limits and rate limits on the pressure are the caller's (node parameters).
   give ``T_meas = T*``: no steady-state error for any constant model error (the integral
   property), while the loop sees no extra lag (a plain integral of ``T* − T_meas`` winds up
   against the pump and pack lag and the coulomb spline friction's stick: tried, it overshot).
-  Anti-windup: ``|u − u_c| <= trim_limit`` (``u_c`` below, 0 without caution); ``u`` holds (does not integrate) while the command is
-  clamped (pressure or rate limits) in the direction the error pushes and for ``trim_delay``
-  after a step of the request (the pack's step transient is the model dynamics' error);
+  Anti-windup: ``|u| <= trim_limit`` (without caution; with it, ``1 + u`` within
+  ``(1 + u_c)(1 ± trim_limit)``, ``u_c`` below); ``u`` holds (does not integrate) while the
+  command is clamped (pressure or rate limits) in the direction the error pushes and for
+  ``trim_delay`` after a step of the request (the pack's step transient is the model
+  dynamics' error);
   it is released to 0 at a step when ``trim_reset_on_change``, without a torque measurement
   for longer than ``trim_hold`` (off: the adapted model alone; a shorter gap, a late CAN
   frame, only holds it), with ``trim_rate`` 0 and at a 0 N m request. The trimmed
@@ -53,7 +55,8 @@ Limits and rate limits on the pressure are the caller's (node parameters).
   the request unless μ is more than ``m σ_s`` above its estimate, and the trim (same cautious
   model, so the integral property holds) closes the gap from below after ``trim_delay``;
   its bound is centred on ``u_c = s_c / s − 1``, the trim that undoes the caution, so
-  ``trim_limit`` still bounds the model's error only. Why from below: on the rig's pack an
+  ``trim_limit`` still bounds the model's relative error only (the same plants are reachable
+  with and without caution). Why from below: on the rig's pack an
   overshoot decays slowly (the spline friction holds a compressed pack; torque is
   hysteretic in pressure), and an overshoot is the worse failure. Before anything is learned
   ``σ_s`` is the adaptation's prior (0.2: 10 % caution at ``m`` = 0.5); a few seconds of
@@ -431,10 +434,13 @@ class TorqueController:
             if not clamped:  # anti-windup: conditional integration
                 gain = min(1.0, s.trim_rate * s.period)
                 self.trim += gain * (error - self.trim)
-                # bounded around the trim that undoes the caution (s_c/s - 1): the limit
-                # is on the model's error, not on the margin put in on purpose
-                centre = self.caution / (self.friction_scale - self.caution)
-                self.trim = max(centre - s.trim_limit, min(centre + s.trim_limit, self.trim))
+                # bounded around the trim that undoes the caution, 1 + u_c = s_c / s: the
+                # limit is on the model's relative error, not on the margin put in on purpose
+                low, high = -s.trim_limit, s.trim_limit
+                if self.caution:
+                    centre = self.friction_scale / (self.friction_scale - self.caution)
+                    low, high = centre * (1.0 + low) - 1.0, centre * (1.0 + high) - 1.0
+                self.trim = max(low, min(high, self.trim))
         # the trim's share: this command minus the one the same tick gives without it
         free = min(max(untrimmed, s.min_pressure), s.max_pressure)
         free = self.pressure + max(-fall, min(rise, free - self.pressure))
