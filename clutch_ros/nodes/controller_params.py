@@ -14,7 +14,7 @@ from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec
 
 __all__ = ["PARAMS", "TIMEOUTS", "controller_settings"]
 
-_C = ControllerSettings()  # the defaults of the trim parameters
+_C = ControllerSettings()  # the defaults of the trim and caution parameters
 PARAMS = [
     ParamSpec("controller.rate", 100.0, "command publishing rate", "Hz", 1.0, 2000.0),
     ParamSpec("controller.min_pressure", 0.0, "lowest commanded pressure", "Pa", 0.0, 1e8),
