@@ -56,12 +56,12 @@ Limits and rate limits on the pressure are the caller's (node parameters).
   model, so the integral property holds) closes the gap from below after ``trim_delay``;
   its bound is centred on ``u_c = s_c / s − 1``, the trim that undoes the caution, so
   ``trim_limit`` still bounds the model's relative error only (the same plants are reachable
-  with and without caution). Why from below: on the rig's pack an
-  overshoot decays slowly (the spline friction holds a compressed pack; torque is
-  hysteretic in pressure), and an overshoot is the worse failure. Before anything is learned
-  ``σ_s`` is the adaptation's prior (0.2: 10 % caution at ``m`` = 0.5); a few seconds of
-  adaptation take it below 0.005 and the caution vanishes. Without a measurement it is 0 (nothing
-  would close the gap; dropped at once when the trim is released).
+  with and without caution). Why from below: on the rig's pack an overshoot decays slowly
+  (the spline friction holds a compressed pack; torque is hysteretic in pressure), and an
+  overshoot is the worse failure. Before anything is learned ``σ_s`` is the adaptation's
+  prior (0.2: 10 % caution at ``m`` = 0.5); a few seconds of adaptation take it below 0.005
+  and the caution vanishes. Without a measurement it is 0 (nothing would close the gap;
+  dropped at once when the trim is released).
 """
 
 from __future__ import annotations
