@@ -38,14 +38,30 @@ Limits and rate limits on the pressure are the caller's (node parameters).
   give ``T_meas = T*``: no steady-state error for any constant model error (the integral
   property), while the loop sees no extra lag (a plain integral of ``T* − T_meas`` winds up
   against the pump and pack lag and the coulomb spline friction's stick: tried, it overshot).
-  Anti-windup: ``|u| <= trim_limit``; ``u`` holds (does not integrate) while the command is
-  clamped (pressure or rate limits) in the direction the error pushes and for ``trim_delay``
-  after a step of the request (the pack's step transient is the model dynamics' error);
+  Anti-windup: ``|u| <= trim_limit`` (without caution; with it, ``1 + u`` within
+  ``(1 + u_c)(1 ± trim_limit)``, ``u_c`` below); ``u`` holds (does not integrate) while the
+  command is clamped (pressure or rate limits) in the direction the error pushes and for
+  ``trim_delay`` after a step of the request (the pack's step transient is the model
+  dynamics' error);
   it is released to 0 at a step when ``trim_reset_on_change``, without a torque measurement
   for longer than ``trim_hold`` (off: the adapted model alone; a shorter gap, a late CAN
   frame, only holds it), with ``trim_rate`` 0 and at a 0 N m request. The trimmed
   pressure still goes through the pressure limits, so it never leaves them;
-  :attr:`ControllerOutput.trim_pressure` is the trim's share of the published pressure.
+  :attr:`ControllerOutput.trim_pressure` is the trim's share of the published pressure;
+- caution while μ is unlearned: while the trim can act (a torque measurement, ``trim_rate``
+  > 0), the friction scale inverted is the upper confidence bound ``s_c = s + m σ_s`` of the
+  adapted scale ``s`` (``σ_s`` its standard deviation, ``m`` ``uncertainty_margin``). Torque
+  is proportional to μ, so at a step the torque then rises towards ``(s_true / s_c) T*``, below
+  the request unless μ is more than ``m σ_s`` above its estimate, and the trim (same cautious
+  model, so the integral property holds) closes the gap from below after ``trim_delay``;
+  its bound is centred on ``u_c = s_c / s − 1``, the trim that undoes the caution, so
+  ``trim_limit`` still bounds the model's relative error only (the same plants are reachable
+  with and without caution). Why from below: on the rig's pack an overshoot decays slowly
+  (the spline friction holds a compressed pack; torque is hysteretic in pressure), and an
+  overshoot is the worse failure. Before anything is learned ``σ_s`` is the adaptation's
+  prior (0.2: 10 % caution at ``m`` = 0.5); a few seconds of adaptation take it below 0.005
+  and the caution vanishes. Without a measurement it is 0 (nothing would close the gap;
+  dropped at once when the trim is released).
 """
 
 from __future__ import annotations
@@ -139,6 +155,10 @@ class ControllerSettings:
         scale_hold: take a new adapted friction scale only when the request changes (or is
             0), never during a hold, where the trim holds the torque: the adaptation and the
             trim then never act on the same error at once
+        uncertainty_margin: while the trim can act (a torque measurement, ``trim_rate`` > 0),
+            invert the model with the friction scale at its upper confidence bound
+            ``s + uncertainty_margin · σ_s`` (σ_s the adaptation's standard deviation), so an
+            unlearned μ is approached from below; 0 = the best estimate ``s`` [number of σ]
 
     """
 
@@ -161,6 +181,7 @@ class ControllerSettings:
     scale_tolerance: float = 1e-3
     trim_reset_on_change: bool = True
     scale_hold: bool = True
+    uncertainty_margin: float = 0.5
 
     def __post_init__(self) -> None:
         checks = {"period": self.period > 0.0, "rise_rate_limit": self.rise_rate_limit > 0.0,
@@ -176,6 +197,7 @@ class ControllerSettings:
                   "trim_hold": self.trim_hold >= 0.0,
                   "step_threshold": self.step_threshold >= 0.0,
                   "scale_tolerance": self.scale_tolerance >= 0.0,
+                  "uncertainty_margin": self.uncertainty_margin >= 0.0,
                   "min_pressure": 0.0 <= self.min_pressure <= self.max_pressure}
         for name, ok in checks.items():
             if not ok or not math.isfinite(getattr(self, name)):
@@ -213,7 +235,8 @@ class TorqueController:
         self.base_params = params
         self.params = params
         self.settings = settings or ControllerSettings()
-        self.friction_scale = 1.0  # [1] applied to self.params
+        self.friction_scale = 1.0  # [1] applied to self.params (caution included)
+        self.caution = 0.0  # [1] of it, the uncertainty margin above the estimate's scale
         self.spline_gain_scale = 1.0  # [1]
         self.target = 0.0  # [N m]
         self.pressure = 0.0  # [Pa], last command
@@ -222,35 +245,66 @@ class TorqueController:
         self._changed_at = -math.inf  # [s] last change of the request
         self._now = -math.inf  # [s] time of the last request
         self._history: list[tuple[float, float]] = []
-        self._pending: tuple[float, float] | None = None
+        self._pending: tuple[float, float, float] | None = None
         self._moved = True  # the request changed since the last tick
-        self._missing_for = 0.0  # [s] the torque measurement has been missing this long
+        # [s] the torque measurement has been missing this long (none seen yet: forever)
+        self._missing_for = math.inf
+        # the first inversion imports scipy.optimize (0.2-0.7 s): here, at start, not in the
+        # control tick of the first step (a node stalled that long there, then fail-safe)
+        solve_pressure(params, 1.0, 20.0, 1.0)
 
     def set_base_params(self, params) -> None:
         """Replace the model parameters (scale 1); the adapted scales are re-applied."""
         self.base_params = params
         self._rescale(self.friction_scale, self.spline_gain_scale)
 
-    def set_model_scale(self, friction_scale: float, spline_gain_scale: float = 1.0) -> None:
+    def set_model_scale(self, friction_scale: float, spline_gain_scale: float = 1.0,
+                        friction_scale_std: float = 0.0) -> None:
         """Invert the model with μ x ``friction_scale`` and gain x ``spline_gain_scale``.
 
-        Ignored for non-finite or non-positive values. With ``scale_hold`` the new scales
-        wait for the next change of the request (module docstring); re-inverts only when a
-        scale moved by more than ``scale_tolerance`` (scaled parameters cost ~0.5 ms).
+        ``friction_scale_std`` [1] is the adaptation's standard deviation of the friction
+        scale: while the trim can act (a torque measurement within ``trim_hold``,
+        ``trim_rate`` > 0), the scale inverted is its upper confidence bound
+        ``friction_scale + uncertainty_margin · friction_scale_std`` (:meth:`_caution`).
+        Ignored for non-finite or non-positive scales (a non-finite or negative std counts
+        as 0). With ``scale_hold`` the new scales wait for the next change of the request
+        (module docstring); re-inverts only when a scale moved by more than
+        ``scale_tolerance`` (scaled parameters cost ~0.5 ms).
         """
         values = (friction_scale, spline_gain_scale)
         if all(math.isfinite(v) and v > 0.0 for v in values):
-            self._pending = (friction_scale, spline_gain_scale)
+            std = friction_scale_std if math.isfinite(friction_scale_std) else 0.0
+            self._pending = (friction_scale, spline_gain_scale, max(std, 0.0))
+
+    def _caution(self, friction_scale_std: float) -> float:
+        """Return the margin [1] added to the friction scale inverted (0: none).
+
+        Why: the torque is proportional to μ, so inverting the model at the upper confidence
+        bound of μ makes the first torque of a step fall short of the request rather than
+        exceed it when μ is not yet learned (overshoot is the worse failure, thesis §1.2;
+        the coulomb spline friction holds an over-compressed pack, so an overshoot decays
+        slowly). The integral trim, whose internal model is the same cautious model, then
+        closes the gap from below; the margin shrinks with σ as the adaptation learns. Only
+        while the trim can act: without a measurement nothing would close the gap, and the
+        best estimate is the better feed-forward.
+        """
+        s = self.settings
+        if s.trim_rate <= 0.0 or self._missing_for > s.trim_hold + 1e-9:
+            return 0.0
+        return s.uncertainty_margin * friction_scale_std
 
     def _apply_pending(self) -> None:
         if self._pending is None:
             return
-        friction_scale, spline_gain_scale = self._pending
+        estimated, spline_gain_scale, std = self._pending
+        caution = self._caution(std)
+        friction_scale = estimated + caution
         tol = self.settings.scale_tolerance
         if (abs(friction_scale - self.friction_scale) > tol * self.friction_scale
                 or abs(spline_gain_scale - self.spline_gain_scale)
                 > tol * self.spline_gain_scale):
             self._rescale(friction_scale, spline_gain_scale)
+        self.caution = self.friction_scale - estimated
         self._pending = None
 
     def _rescale(self, friction_scale: float, spline_gain_scale: float) -> None:
@@ -341,6 +395,9 @@ class TorqueController:
         state = self._trim_state(measured_torque, modelled_torque, modelled_scale)
         if state and state != "hold":
             self.trim = 0.0  # off: released at once (the adapted model alone)
+            if self.caution and state != "no request":  # nothing would close the gap
+                self._rescale(self.friction_scale - self.caution, self.spline_gain_scale)
+                self.caution = 0.0
         extra = self.trim * self.request
         base = max(self.target + lead, 0.0)
         cmd = command_pressure(self.params, base + extra if base > 0.0 else 0.0,
@@ -377,7 +434,13 @@ class TorqueController:
             if not clamped:  # anti-windup: conditional integration
                 gain = min(1.0, s.trim_rate * s.period)
                 self.trim += gain * (error - self.trim)
-                self.trim = max(-s.trim_limit, min(s.trim_limit, self.trim))
+                # bounded around the trim that undoes the caution, 1 + u_c = s_c / s: the
+                # limit is on the model's relative error, not on the margin put in on purpose
+                low, high = -s.trim_limit, s.trim_limit
+                if self.caution:
+                    centre = self.friction_scale / (self.friction_scale - self.caution)
+                    low, high = centre * (1.0 + low) - 1.0, centre * (1.0 + high) - 1.0
+                self.trim = max(low, min(high, self.trim))
         # the trim's share: this command minus the one the same tick gives without it
         free = min(max(untrimmed, s.min_pressure), s.max_pressure)
         free = self.pressure + max(-fall, min(rise, free - self.pressure))

@@ -27,8 +27,12 @@ Adapted model and trim: the target is inverted with μ scaled by the estimate's 
 changes, never during a hold) and, while the estimate carries a measured torque, an integral
 trim on it (``controller.trim_rate``, ``controller.trim_limit``, ``controller.trim_delay``;
 :class:`~clutch_ros.model.control.TorqueController` documents the law and its anti-windup)
-removes what the model still gets wrong; without a measurement it is off. The trim's share
-of every command is ``PressureCommand.trim_pressure`` [Pa]; the limits still bound it.
+removes what the model still gets wrong; without a measurement it is off. While the trim
+can act, the scale inverted is the upper confidence bound ``friction_scale +
+controller.uncertainty_margin x friction_scale_std`` (the estimate's standard deviation), so a
+step before anything is learned approaches the request from below and the trim closes the
+gap (``caution`` in ``/diagnostics``). The trim's share of every command is
+``PressureCommand.trim_pressure`` [Pa]; the limits still bound it.
 
 Parameters: every ``controller.*`` setting and every model key applies live (the next tick)
 after validation: ranges by ROS, ``min_pressure <= max_pressure`` and the model's rules here;
@@ -43,54 +47,16 @@ from rclpy.node import Node
 
 from clutch_ros.config.presets import default_preset
 from clutch_ros.errors import ClutchError
-from clutch_ros.model.control import ControllerSettings, TorqueController
+from clutch_ros.model.control import TorqueController
+from clutch_ros.nodes.controller_params import PARAMS, TIMEOUTS, controller_settings
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.model_params import apply_model_changes, declare_model_params
-from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec, declare_params
+from clutch_ros.nodes.parameters import declare_params
 from clutch_ros.nodes.peers import Input, PeerWatch
 from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 from clutch_ros.nodes.runner import run_node
 
 NAME = "controller"
-_C = ControllerSettings()  # the defaults of the trim parameters
-PARAMS = [
-    ParamSpec("controller.rate", 100.0, "command publishing rate", "Hz", 1.0, 2000.0),
-    ParamSpec("controller.min_pressure", 0.0, "lowest commanded pressure", "Pa", 0.0, 1e8),
-    ParamSpec("controller.max_pressure", 40e5, "highest commanded pressure", "Pa", 0.0, 1e8),
-    ParamSpec("controller.rise_rate_limit", 90e5, "maximum pressure rise; below the pump's "
-              "kick threshold (about 100 bar/s, thesis 5.1.1)", "Pa/s", 1.0, 1e10),
-    ParamSpec("controller.fall_rate_limit", 400e5, "maximum pressure fall (fail-safe zeroing "
-              "bypasses it)", "Pa/s", 1.0, 1e10),
-    ParamSpec("controller.torque_ramp_rate", 4000.0, "maximum slew of the torque target "
-              "(request ramping)", "N m/s", 1.0, 1e7),
-    ParamSpec("controller.lead_time", 0.2, "the target is advanced by lead_time x the request "
-              "slope: pack lag c/k (0.1 s), pump lag (~0.05 s) and transport delay", "s",
-              0.0, 2.0),
-    ParamSpec("controller.lead_max_rate", 1000.0, "bound of the request slope used by the "
-              "lead (steps are not differentiated into spikes)", "N m/s", 0.0, 1e6),
-    ParamSpec("controller.overshoot_margin", 0.05, "overshoot guard: pressure never above the "
-              "steady-state inverse of (1 + margin) x request", "1", 0.0, 1.0),
-    ParamSpec("controller.spline_correction_gain", 1.0, "weight of the dynamic spline-friction "
-              "correction (0 = steady-state inverse only)", "1", 0.0, 2.0),
-    ParamSpec("controller.use_adapted_model", True, "invert the model with the estimate's "
-              "adapted friction_scale (and spline_gain_scale)"),
-    ParamSpec("controller.trim_rate", _C.trim_rate, "integral gain of the torque trim on the "
-              "measured torque, 1/its time constant; 0 = off (off anyway without a "
-              "measurement)", "1/s", 0.0, 100.0),
-    ParamSpec("controller.trim_limit", _C.trim_limit, "bound of the trim, a fraction of the "
-              "request", "1", 0.0, 1.0),
-    ParamSpec("controller.trim_delay", _C.trim_delay, "the trim holds this long after a step "
-              "of the request (the pack's step transient)", "s", 0.0, 10.0),
-    ParamSpec("controller.trim_hold", _C.trim_hold, "a torque measurement missing for up to "
-              "this long holds the trim (a late frame); longer releases it", "s", 0.0, 10.0),
-    ParamSpec("controller.request_timeout", 0.5, "a torque request older than this is stale "
-              "-> 0 Pa", "s", 0.001, 3600.0),
-    ParamSpec("controller.rig_timeout", 0.25, "rig_state older than this is stale -> 0 Pa", "s",
-              0.001, 3600.0),
-    ParamSpec("controller.estimate_timeout", 0.25, "clutch_estimate older than this is stale "
-              "-> 0 Pa", "s", 0.001, 3600.0),
-    HARDWARE_ID_PARAM,
-]
 
 
 class ControllerNode(Node):
@@ -98,11 +64,9 @@ class ControllerNode(Node):
 
     def __init__(self):
         super().__init__(NAME)
-
-
         cfg = self._cfg = declare_params(self, PARAMS)
         params = declare_model_params(self, default_preset("flexiforce_8"))
-        self._ctl = TorqueController(params, _settings(cfg))
+        self._ctl = TorqueController(params, controller_settings(cfg))
         self._peers = PeerWatch(self, [
             Input("torque request", "torque_request", cfg["controller.request_timeout"],
                   "a torque-request source"),
@@ -142,7 +106,7 @@ class ControllerNode(Node):
                 f"controller.min_pressure {cfg['controller.min_pressure']} Pa must not exceed "
                 f"controller.max_pressure {cfg['controller.max_pressure']} Pa"))
         try:
-            settings = _settings(cfg)
+            settings = controller_settings(cfg)
         except ClutchError as err:
             return SetParametersResult(successful=False, reason=str(err))
         new_params, reason = apply_model_changes(self._ctl.params, params)
@@ -156,7 +120,7 @@ class ControllerNode(Node):
             self._ctl.settings = settings
             self._ctl.pressure = min(max(self._ctl.pressure, settings.min_pressure),
                                      settings.max_pressure)
-            for what, key in _TIMEOUTS.items():
+            for what, key in TIMEOUTS.items():
                 self._peers.set_timeout(what, cfg[key])
             if period_changed:
                 self.destroy_timer(self._timer)
@@ -188,7 +152,6 @@ class ControllerNode(Node):
         return self._peers.silent(now)
 
     def _tick(self) -> None:
-
         stale = self._stale_reason(self._now())
         if stale:
             out = self._ctl.fail_safe(stale)
@@ -199,7 +162,7 @@ class ControllerNode(Node):
             scale = est.friction_scale if est.friction_scale > 0.0 else 1.0
             if self._cfg["controller.use_adapted_model"]:
                 gain = est.spline_gain_scale if est.spline_gain_scale > 0.0 else 1.0
-                self._ctl.set_model_scale(scale, gain)
+                self._ctl.set_model_scale(scale, gain, est.friction_scale_std)
             else:
                 self._ctl.set_model_scale(1.0, 1.0)
             out = self._ctl.update(est.lamella_temperature, est.slip_speed_filtered,
@@ -221,31 +184,11 @@ class ControllerNode(Node):
         now = self._now()
         values = dict(self._counts, pressure_pa=self._ctl.pressure, target_nm=self._ctl.target,
                       last_reason=self._last_reason, friction_scale=self._ctl.friction_scale,
-                      trim=self._ctl.trim, **self._peers.ages(now))
+                      caution=self._ctl.caution, trim=self._ctl.trim, **self._peers.ages(now))
         stale = self._stale_reason(now)
         if stale:
             return "WARN", f"fail-safe 0 Pa: {stale}", values
         return "OK", "controlling", values
-
-
-#: input -> its timeout parameter
-_TIMEOUTS = {"torque request": "controller.request_timeout", "rig data": "controller.rig_timeout",
-             "estimate": "controller.estimate_timeout"}
-
-
-def _settings(cfg: dict) -> ControllerSettings:
-    """Return the ControllerSettings of the ``controller.*`` values ``cfg`` (may raise)."""
-    return ControllerSettings(
-        period=1.0 / cfg["controller.rate"], min_pressure=cfg["controller.min_pressure"],
-        max_pressure=cfg["controller.max_pressure"],
-        rise_rate_limit=cfg["controller.rise_rate_limit"],
-        fall_rate_limit=cfg["controller.fall_rate_limit"],
-        torque_ramp_rate=cfg["controller.torque_ramp_rate"],
-        lead_time=cfg["controller.lead_time"], lead_max_rate=cfg["controller.lead_max_rate"],
-        overshoot_margin=cfg["controller.overshoot_margin"],
-        correction_gain=cfg["controller.spline_correction_gain"],
-        trim_rate=cfg["controller.trim_rate"], trim_limit=cfg["controller.trim_limit"],
-        trim_delay=cfg["controller.trim_delay"], trim_hold=cfg["controller.trim_hold"])
 
 
 def main(args=None) -> int:

@@ -5,8 +5,9 @@ The same classes as the live suite (:class:`clutch_ros.rig.RigPlant`,
 :class:`~clutch_ros.model.adaptation.AdaptiveEstimator`,
 :class:`clutch_ros.model.control.TorqueController`) stepped deterministically: the plant at
 ``dt`` (1 kHz), the estimator every ``estimator_period``, the controller every
-``settings.period`` on the latest estimate (its adapted friction scale and measured torque
-for the trim, as the controller node takes them from ``clutch_estimate``); one estimator
+``settings.period`` on the latest estimate (its adapted friction scale, the scale's standard
+deviation and the measured torque for the trim, as the controller node takes them from
+``clutch_estimate``); one estimator
 period of transport delay between plant and controller. It answers "does the control law
 hold ±10 % (and the plateaus within 2 %) on this plant?" in seconds and without timing
 noise, and is what the controller's defaults were tuned with (``clutch closed-loop``).
@@ -36,7 +37,8 @@ class ClosedLoopResult:
     """Time series of a closed-loop run (n samples at the plant rate) and its figures.
 
     Arrays: ``time`` [s], ``request``, ``measured``, ``modelled`` [N m], ``pressure_command``,
-    ``actuating_pressure``, ``trim_pressure`` [Pa], ``friction_scale`` [1], ``settled``
+    ``actuating_pressure``, ``trim_pressure`` [Pa], ``friction_scale`` and its standard
+    deviation ``friction_scale_std`` [1], ``settled``
     (bool). Figures: ``within_10pct`` (fraction of settled samples with measured/request in
     [0.9, 1.1]), ``worst_overshoot``, ``longest_overshoot_s`` [s], ``steady_state_error``
     (:mod:`clutch_ros.offline.steady_state`, rated torque = the profile's largest request
@@ -56,6 +58,7 @@ class ClosedLoopResult:
     steady_state_error: float = math.nan
     trim_pressure: np.ndarray | None = None
     friction_scale: np.ndarray | None = None
+    friction_scale_std: np.ndarray | None = None
 
 
 def run_closed_loop(estimator_params, plant, profile: list[Segment], settings=None,
@@ -79,7 +82,7 @@ def run_closed_loop(estimator_params, plant, profile: list[Segment], settings=No
     est_every = max(1, int(round(estimator_period / dt)))
     ctl_every = max(1, int(round(controller.settings.period / dt)))
     out = {k: np.empty(n) for k in ("time", "request", "measured", "modelled", "command",
-                                    "pressure", "trim", "scale")}
+                                    "pressure", "trim", "scale", "std")}
     plant.reset()
     estimate = None
     status = None
@@ -94,7 +97,8 @@ def run_closed_loop(estimator_params, plant, profile: list[Segment], settings=No
             else:
                 measured, scale = math.nan, 1.0
                 if status is not None:
-                    controller.set_model_scale(status.friction_scale, status.spline_gain_scale)
+                    controller.set_model_scale(status.friction_scale, status.spline_gain_scale,
+                                               status.friction_scale_std)
                     measured, scale = estimate.measured_torque, status.friction_scale
                 ctl = controller.update(estimate.lamella_temperature,
                                         estimate.slip_speed_filtered,
@@ -115,6 +119,7 @@ def run_closed_loop(estimator_params, plant, profile: list[Segment], settings=No
         out["pressure"][i] = signals.actuating_pressure
         out["trim"][i] = trim
         out["scale"][i] = status.friction_scale if status is not None else 1.0
+        out["std"][i] = status.friction_scale_std if status is not None else 0.0
     rated = rated_torque if rated_torque is not None else \
         max(max(seg.start, seg.end) for seg in profile) / 0.9
     return _figures(out, profile, rated)
@@ -132,4 +137,5 @@ def _figures(out: dict, profile, rated: float) -> ClosedLoopResult:
         worst_overshoot=float(ratio.max()) if ratio.size else math.nan,
         longest_overshoot_s=longest_run(over, t),
         steady_state_error=steady_state_error(profile, t, meas, rated),
-        trim_pressure=out["trim"], friction_scale=out["scale"])
+        trim_pressure=out["trim"], friction_scale=out["scale"],
+        friction_scale_std=out["std"])

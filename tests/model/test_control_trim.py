@@ -6,6 +6,7 @@ whatever ``c``, stay within its bounds and never push the pressure outside the l
 """
 
 import math
+from dataclasses import replace
 
 import pytest
 from hypothesis import given, settings
@@ -15,24 +16,33 @@ from scipy.optimize import brentq
 
 from clutch_ros.model.adaptation import scaled_params
 from clutch_ros.model.control import ControllerSettings, TorqueController
+from clutch_ros.model.errors import ModelError
 from clutch_ros.model.inverse import capacity_scalar
 
 W10 = 10 * 2 * math.pi / 60  # [rad/s]
 TEMP = 40.0  # [°C]
 
 
-def _static_loop(params, settings, request, c, ticks=400, measured=True, scale=1.0):
-    """Run the controller on a static plant T = c C(p); return (controller, outputs)."""
+def _static_loop(params, settings, request, c, ticks=400, measured=True, scale=1.0,
+                 std=0.0, idle=0):
+    """Run the controller on a static plant T = c C(p); return (controller, outputs).
+
+    ``scale`` and ``std`` are the adapted friction scale and its standard deviation the
+    estimate carries; the estimator's modelled torque is computed at scale 1. ``idle``
+    ticks at a request of 0 N m come first (a rig at rest, measuring); outputs from the step.
+    """
     ctl = TorqueController(params, settings)
-    ctl.set_model_scale(scale)
     outs = []
-    for k in range(ticks):
+    for k in range(-idle, ticks):
         t = k * settings.period
-        ctl.set_request(t, request)
+        ctl.set_request(t, request if k >= 0 else 0.0)
+        ctl.set_model_scale(scale, 1.0, std)  # every tick, as the node does
         p = ctl.pressure
         model = capacity_scalar(params, p, TEMP, W10)  # the estimator at scale 1
         meas = c * model if measured else math.nan
-        outs.append(ctl.update(TEMP, W10, 0.0, meas, model, 1.0))
+        out = ctl.update(TEMP, W10, 0.0, meas, model, 1.0)
+        if k >= 0:
+            outs.append(out)
     return ctl, outs
 
 
@@ -124,3 +134,87 @@ def test_pressure_never_outside_the_limits(flexiforce, rows):
         assert s.min_pressure <= out.pressure <= s.max_pressure
         assert abs(ctl.trim) <= s.trim_limit
         assert math.isfinite(out.trim_pressure)
+
+
+# --- caution while the friction scale is unlearned (uncertainty_margin) --------------------
+
+FAST = {"rise_rate_limit": 1e9, "fall_rate_limit": 1e9}
+
+
+def _exact(params, c, request):
+    """Pressure [Pa] at which the plant T = c C(p) transmits ``request``."""
+    return brentq(lambda p: c * capacity_scalar(params, p, TEMP, W10) - request, 0, 50e5,
+                  xtol=1e-6)
+
+
+def test_unlearned_mu_is_approached_from_below(flexiforce):
+    """Rig μ +6 %, nothing learned (σ = the 0.2 prior): below the request until the trim acts.
+
+    Torque is proportional to μ, so the inverse at s + 0.5 σ = 1.1 gives 1.06 / 1.1 of the
+    request; the best estimate (margin 0) gives 1.06 of it: the first-step overshoot.
+    """
+    s = ControllerSettings(uncertainty_margin=0.5, **FAST)
+    request, c = 600.0, 1.06
+    ctl, outs = _static_loop(flexiforce, s, request, c, std=0.2, idle=5)
+    delay = round(s.trim_delay / s.period)
+    torques = [c * capacity_scalar(flexiforce, o.pressure, TEMP, W10) for o in outs]
+    assert ctl.caution == pytest.approx(0.1) and ctl.friction_scale == pytest.approx(1.1)
+    # once the target has ramped up, until the trim acts: below the request, not above
+    assert_allclose(torques[delay // 2:delay], request * 1.06 / 1.1, rtol=1e-6)
+    assert max(torques) <= request * (1 + 1e-6)  # from below all the way
+    assert_allclose(ctl.pressure, _exact(flexiforce, c, request), rtol=1e-6)  # no offset
+    _, bold = _static_loop(flexiforce, replace(s, uncertainty_margin=0.0), request, c,
+                           std=0.2, idle=5)
+    assert c * capacity_scalar(flexiforce, bold[delay - 1].pressure, TEMP, W10) \
+        == pytest.approx(1.06 * request, rel=1e-6)
+
+
+@pytest.mark.parametrize("c", [0.875, 0.95, 1.06, 1.17])
+def test_caution_keeps_the_trims_reach(flexiforce, c):
+    """The trim's bound is centred on the caution: same reach as without it.
+
+    Every plant the trim reaches without caution (|1/c - 1| <= trim_limit) it still reaches
+    with it, to the exact pressure.
+    """
+    s = ControllerSettings(uncertainty_margin=0.5, **FAST)
+    ctl, _ = _static_loop(flexiforce, s, 600.0, c, std=0.2, ticks=600, idle=5)
+    assert_allclose(ctl.pressure, _exact(flexiforce, c, 600.0), rtol=1e-6)
+    assert_allclose(1.0 + ctl.trim, 1.1 / c, rtol=1e-5)
+
+
+def test_no_caution_without_a_measurement(flexiforce):
+    """Nothing would close the gap: the best estimate is inverted, no margin."""
+    s = ControllerSettings(uncertainty_margin=0.5, **FAST)
+    ctl, _ = _static_loop(flexiforce, s, 600.0, 1.06, measured=False, std=0.2, idle=5)
+    assert ctl.caution == 0.0 and ctl.friction_scale == 1.0
+    assert_allclose(ctl.pressure, capacity_inverse(flexiforce, 600.0), rtol=1e-9)
+    off = ControllerSettings(uncertainty_margin=0.5, trim_rate=0.0, **FAST)
+    ctl, _ = _static_loop(flexiforce, off, 600.0, 1.06, std=0.2, idle=5)  # trim off: none either
+    assert ctl.caution == 0.0
+
+
+def test_caution_dropped_when_the_measurement_drops_out(flexiforce):
+    """A dropout releases the trim; the caution goes with it, mid-hold (no offset left)."""
+    s = ControllerSettings(uncertainty_margin=0.5, **FAST)
+    ctl, _ = _static_loop(flexiforce, s, 600.0, 1.06, std=0.2, idle=5)
+    assert ctl.caution > 0.0
+    for _ in range(round(s.trim_hold / s.period) + 1):
+        ctl.update(TEMP, W10, 0.0, math.nan, 600.0)
+    assert ctl.caution == 0.0 and ctl.friction_scale == 1.0 and ctl.trim == 0.0
+    assert_allclose(ctl.pressure, capacity_inverse(flexiforce, 600.0), rtol=1e-9)
+
+
+def test_caution_shrinks_with_the_std(flexiforce):
+    """Learned (σ small): the margin is m σ, next to nothing; σ = 0 or margin 0: none."""
+    for margin, std, expected in ((0.5, 0.004, 0.002), (0.5, 0.0, 0.0), (0.0, 0.2, 0.0),
+                                  (1.0, math.nan, 0.0)):
+        s = ControllerSettings(uncertainty_margin=margin, **FAST)
+        ctl, _ = _static_loop(flexiforce, s, 600.0, 1.0, ticks=2, scale=1.05, std=std,
+                                 idle=5)
+        assert ctl.caution == pytest.approx(expected, abs=1e-12)
+        assert ctl.friction_scale == pytest.approx(1.05 + expected)
+
+
+def test_uncertainty_margin_must_not_be_negative():
+    with pytest.raises(ModelError, match="uncertainty_margin"):
+        ControllerSettings(uncertainty_margin=-0.1)

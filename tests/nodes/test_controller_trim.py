@@ -77,3 +77,70 @@ def test_trim_share_is_published_and_released_without_measurement(controller):
     assert trimmed.trim_pressure == pytest.approx(needed - plain, rel=0.05)
     assert released.trim_pressure == 0.0
     assert released.pressure == pytest.approx(plain, rel=1e-3)
+
+
+def test_unlearned_scale_is_inverted_at_its_upper_bound(controller):
+    """friction_scale_std 0.2 (nothing learned): the step is commanded for μ x 1.2, not 1.1.
+
+    ``controller.uncertainty_margin`` 0.5 (default) puts the inverted scale at s + 0.5 σ while
+    a measurement lets the trim act; the model at s is right here, so the trim then takes
+    the command up to the best estimate's inverse, from below.
+    """
+    from clutch_msgs.msg import ClutchEstimate, PressureCommand, RigState, TorqueRequest
+
+    from clutch_ros.config.params_file import load_params
+    from clutch_ros.model.adaptation import scaled_params
+    from clutch_ros.model.inverse import capacity_scalar, pressure_for_torque
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+
+    base = load_params(PRESET)
+    params = scaled_params(base, SCALE)
+    state = {"request": 0.0}
+    with Harness("caution_test") as h:
+        commands = h.collect(PressureCommand, "pressure_command", reliable_qos())
+        req_pub = h.node.create_publisher(TorqueRequest, "torque_request", reliable_qos())
+        rig_pub = h.node.create_publisher(RigState, "rig_state", sensor_qos())
+        est_pub = h.node.create_publisher(ClutchEstimate, "clutch_estimate", reliable_qos())
+
+        def tick():
+            now = h.node.get_clock().now().nanoseconds * 1e-9
+            req = TorqueRequest()
+            req.torque = state["request"]
+            req_pub.publish(req)
+            rig_pub.publish(rig_state(now))
+            est = ClutchEstimate()
+            pressure = commands[-1].pressure if commands else 0.0
+            est.modelled_torque = capacity_scalar(params, pressure, 40.0, W10)
+            est.measured_torque = est.modelled_torque  # the model at SCALE is right
+            est.lamella_temperature, est.slip_speed_filtered = 40.0, W10
+            est.friction_scale, est.spline_gain_scale = SCALE, 1.0
+            est.friction_scale_std = 0.2  # the adaptation's prior: nothing learned
+            est_pub.publish(est)
+
+        h.node.create_timer(0.01, tick)
+        h.spin_until(lambda: len(commands) > 30, 60.0, "commands at rest (0 N m)")
+        state["request"] = REQUEST
+        h.spin_until(lambda: commands[-1].requested_torque == REQUEST, 10.0, "the step")
+        stepped = len(commands) - 1
+        h.spin_for(3.0)  # trim_delay 0.5 s, then the trim converges (0.125 s constant)
+        assert controller.poll() is None, "controller died"
+
+    step_t = _stamp(commands[stepped])
+    early = [c.pressure for c in commands[stepped:] if _stamp(c) < step_t + 0.4]
+    best = pressure_for_torque(params, REQUEST, 40.0, W10)  # the inverse at s = 1.1
+    cautious = pressure_for_torque(scaled_params(base, SCALE + 0.1), REQUEST, 40.0, W10)
+    print(f"early max {max(early) / 1e5:.2f} bar, cautious {cautious / 1e5:.2f}, "
+          f"best {best / 1e5:.2f}, final {commands[-1].pressure / 1e5:.2f}")
+    assert cautious < 0.95 * best
+    # before the trim acts: never above the cautious inverse's overshoot guard (1.05 x), so
+    # below what the best estimate asks for
+    assert max(early) <= 1.001 * pressure_for_torque(
+        scaled_params(base, SCALE + 0.1), 1.05 * REQUEST, 40.0, W10) < best
+    assert max(early) == pytest.approx(cautious, rel=0.01)  # held there until the trim acts
+    final = commands[-1]
+    assert final.pressure == pytest.approx(best, rel=0.01)  # the trim undid the caution
+    assert final.trim_pressure == pytest.approx(best - cautious, rel=0.05)
+
+
+def _stamp(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9

@@ -1,0 +1,81 @@
+"""The controller node's parameters (``controller.*``): unit, range, description, defaults.
+
+Every one applies live (the node validates a change as a whole and applies it from the next
+tick, :mod:`clutch_ros.nodes.controller`). The trim and caution defaults come from
+:class:`clutch_ros.model.control.ControllerSettings`; :func:`controller_settings` turns the
+declared values back into settings (the model validates them and raises a ClutchError with
+its reason).
+"""
+
+from __future__ import annotations
+
+from clutch_ros.model.control import ControllerSettings
+from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec
+
+__all__ = ["PARAMS", "TIMEOUTS", "controller_settings"]
+
+_C = ControllerSettings()  # the defaults of the trim and caution parameters
+PARAMS = [
+    ParamSpec("controller.rate", 100.0, "command publishing rate", "Hz", 1.0, 2000.0),
+    ParamSpec("controller.min_pressure", 0.0, "lowest commanded pressure", "Pa", 0.0, 1e8),
+    ParamSpec("controller.max_pressure", 40e5, "highest commanded pressure", "Pa", 0.0, 1e8),
+    ParamSpec("controller.rise_rate_limit", 90e5, "maximum pressure rise; below the pump's "
+              "kick threshold (about 100 bar/s, thesis 5.1.1)", "Pa/s", 1.0, 1e10),
+    ParamSpec("controller.fall_rate_limit", 400e5, "maximum pressure fall (fail-safe zeroing "
+              "bypasses it)", "Pa/s", 1.0, 1e10),
+    ParamSpec("controller.torque_ramp_rate", 4000.0, "maximum slew of the torque target "
+              "(request ramping)", "N m/s", 1.0, 1e7),
+    ParamSpec("controller.lead_time", 0.2, "the target is advanced by lead_time x the request "
+              "slope: pack lag c/k (0.1 s), pump lag (~0.05 s) and transport delay", "s",
+              0.0, 2.0),
+    ParamSpec("controller.lead_max_rate", 1000.0, "bound of the request slope used by the "
+              "lead (steps are not differentiated into spikes)", "N m/s", 0.0, 1e6),
+    ParamSpec("controller.overshoot_margin", 0.05, "overshoot guard: pressure never above the "
+              "steady-state inverse of (1 + margin) x request", "1", 0.0, 1.0),
+    ParamSpec("controller.spline_correction_gain", 1.0, "weight of the dynamic spline-friction "
+              "correction (0 = steady-state inverse only)", "1", 0.0, 2.0),
+    ParamSpec("controller.use_adapted_model", True, "invert the model with the estimate's "
+              "adapted friction_scale (and spline_gain_scale)"),
+    ParamSpec("controller.trim_rate", _C.trim_rate, "integral gain of the torque trim on the "
+              "measured torque, 1/its time constant; 0 = off (off anyway without a "
+              "measurement)", "1/s", 0.0, 100.0),
+    ParamSpec("controller.trim_limit", _C.trim_limit, "bound of the trim, a fraction of the "
+              "request", "1", 0.0, 1.0),
+    ParamSpec("controller.trim_delay", _C.trim_delay, "the trim holds this long after a step "
+              "of the request (the pack's step transient)", "s", 0.0, 10.0),
+    ParamSpec("controller.trim_hold", _C.trim_hold, "a torque measurement missing for up to "
+              "this long holds the trim (a late frame); longer releases it", "s", 0.0, 10.0),
+    ParamSpec("controller.uncertainty_margin", _C.uncertainty_margin, "while the trim can act, "
+              "invert the model with the friction scale at s + margin x friction_scale_std "
+              "(its upper confidence bound, in standard deviations): an unlearned mu is "
+              "approached from below and the trim closes the gap; 0 = the estimate s; taken "
+              "at the next change of the request", "1", 0.0, 5.0),
+    ParamSpec("controller.request_timeout", 0.5, "a torque request older than this is stale "
+              "-> 0 Pa", "s", 0.001, 3600.0),
+    ParamSpec("controller.rig_timeout", 0.25, "rig_state older than this is stale -> 0 Pa", "s",
+              0.001, 3600.0),
+    ParamSpec("controller.estimate_timeout", 0.25, "clutch_estimate older than this is stale "
+              "-> 0 Pa", "s", 0.001, 3600.0),
+    HARDWARE_ID_PARAM,
+]
+
+
+#: input -> its timeout parameter
+TIMEOUTS = {"torque request": "controller.request_timeout", "rig data": "controller.rig_timeout",
+            "estimate": "controller.estimate_timeout"}
+
+
+def controller_settings(cfg: dict) -> ControllerSettings:
+    """Return the ControllerSettings of the ``controller.*`` values ``cfg`` (may raise)."""
+    return ControllerSettings(
+        period=1.0 / cfg["controller.rate"], min_pressure=cfg["controller.min_pressure"],
+        max_pressure=cfg["controller.max_pressure"],
+        rise_rate_limit=cfg["controller.rise_rate_limit"],
+        fall_rate_limit=cfg["controller.fall_rate_limit"],
+        torque_ramp_rate=cfg["controller.torque_ramp_rate"],
+        lead_time=cfg["controller.lead_time"], lead_max_rate=cfg["controller.lead_max_rate"],
+        overshoot_margin=cfg["controller.overshoot_margin"],
+        correction_gain=cfg["controller.spline_correction_gain"],
+        trim_rate=cfg["controller.trim_rate"], trim_limit=cfg["controller.trim_limit"],
+        trim_delay=cfg["controller.trim_delay"], trim_hold=cfg["controller.trim_hold"],
+        uncertainty_margin=cfg["controller.uncertainty_margin"])
