@@ -25,8 +25,8 @@ from clutch_ros.bag.fastmcap import scan_chunks
 from clutch_ros.bag.reader import BagReader
 from clutch_ros.bag.typestore import RIG_STATE, Typestore, topic_name
 
-__all__ = ["REPLAY_FIELDS", "ColumnSink", "RigStateArrays", "mcap_files", "read_fast",
-           "read_rig_states", "read_via_rosbags"]
+__all__ = ["REPLAY_FIELDS", "ColumnSink", "RigStateArrays", "mcap_files", "model_inputs",
+           "read_fast", "read_rig_states", "read_via_rosbags"]
 
 #: The RigState fields the estimator needs (``clutch replay`` without a report).
 REPLAY_FIELDS = ("header.stamp.sec", "header.stamp.nanosec", "actuating_pressure",
@@ -72,6 +72,22 @@ class RigStateArrays:
         if name in columns:
             return columns[name]
         raise AttributeError(f"RigStateArrays has no field {name!r}")
+
+
+def model_inputs(columns: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+    """Return the estimator's inputs from RigState columns: ``(t, p, temp, omega, measured)``.
+
+    ``t``: header stamps [s] as the node computes them (``sec + nanosec * 1e-9``, float64, so
+    both see bit-identical time steps); actuating pressure [Pa]; lamella temperature [°C];
+    slip speed [rad/s]; measured torque [N m], NaN where ``has_measured_torque`` is false.
+    Element by element, so a block's inputs are the whole stream's rows.
+    """
+    t = (columns["header.stamp.sec"].astype(np.float64)
+         + columns["header.stamp.nanosec"].astype(np.float64) * 1e-9)
+    measured = np.where(columns["has_measured_torque"].astype(bool),
+                        columns["measured_torque"], np.nan)
+    return (t, columns["actuating_pressure"], columns["lamella_temperature"],
+            columns["slip_speed"], measured)
 
 
 class ColumnSink:

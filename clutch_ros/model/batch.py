@@ -157,29 +157,25 @@ class BatchEstimator:
         self._alloc(max(int(capacity), 1))
 
     def _alloc(self, size: int) -> None:
-        old = getattr(self, "_in", None)
         self._in = {k: np.empty(size) for k in _INPUTS}
         self.cols = np.empty((_N_COLS, size))
         self.accepted = np.zeros(size, dtype=bool)
         self.reinit = np.zeros(size, dtype=bool)
         self.normal = np.empty((size, self.lamellas)) if self.lamellas else None
         self.spline = np.empty((size, self.lamellas)) if self.lamellas else None
-        if old is not None:  # grown: keep what was fed
-            n = self.n
-            for k in _INPUTS:
-                self._in[k][:n] = old[k][:n]
-            self.cols[:, :n], self.accepted[:n], self.reinit[:n] = self._old
-            if self.lamellas:
-                self.normal[:n], self.spline[:n] = self._old_lamellas
 
     def _grow(self, needed: int) -> None:
+        """Reallocate for at least ``needed`` samples (doubling), keeping what was fed."""
         n = self.n
-        self._old = (self.cols[:, :n], self.accepted[:n], self.reinit[:n])
+        ins, cols, accepted, reinit = self._in, self.cols, self.accepted, self.reinit
+        normal, spline = self.normal, self.spline
+        self._alloc(max(needed, 2 * cols.shape[1]))
+        for k in _INPUTS:
+            self._in[k][:n] = ins[k][:n]
+        self.cols[:, :n], self.accepted[:n], self.reinit[:n] = (cols[:, :n], accepted[:n],
+                                                                reinit[:n])
         if self.lamellas:
-            self._old_lamellas = (self.normal[:n], self.spline[:n])
-        self._alloc(max(needed, 2 * self.cols.shape[1]))
-        del self._old
-        self.__dict__.pop("_old_lamellas", None)
+            self.normal[:n], self.spline[:n] = normal[:n], spline[:n]
 
     def feed(self, t, actuating_pressure, lamella_temperature, slip_speed,
              measured_torque=np.nan) -> None:
@@ -230,11 +226,10 @@ class BatchEstimator:
         t = ins["t"]
         finite = (np.isfinite(t) & np.isfinite(ins["p"]) & ~np.isinf(ins["temp"])
                   & np.isfinite(ins["omega"]) & ~np.isinf(ins["meas"]))
-        prev = np.maximum.accumulate(np.where(finite, t, -np.inf))
-        prev = np.concatenate([[self._prev_max], np.maximum(prev[:-1], self._prev_max)])
-        if t.size:
-            self._prev_max = max(self._prev_max, float(prev[-1]), float(np.where(
-                finite[-1], t[-1], -np.inf)))
+        # running[i]: the largest finite stamp before sample i (earlier pieces included)
+        running = np.maximum.accumulate(
+            np.concatenate([[self._prev_max], np.where(finite, t, -np.inf)]))
+        prev, self._prev_max = running[:-1], float(running[-1])
         accepted = finite & (t > prev)
         kinds = np.where(~finite, 1, np.where(t == prev, 2, np.where(t < prev, 3, 0)))
         return accepted, kinds

@@ -26,11 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from clutch_ros.bag.errors import BagError
-from clutch_ros.bag.rig_states import read_rig_states
+from clutch_ros.bag.rig_states import model_inputs, read_rig_states
 from clutch_ros.config.params_file import write_params
 from clutch_ros.model import EstimateBatch, SampleRejected, accuracy_summary, within_band
 from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimator
-from clutch_ros.offline.replay import ReplayResult, published_rows, stamps_s, write_estimates
+from clutch_ros.offline.replay import ReplayResult, published_rows, write_estimates
 
 __all__ = ["ADAPTATION_FIELDS", "AdaptiveReplay", "AdaptationEvent", "adaptive_replay",
            "save_adapted_params", "write_adaptive_estimates"]
@@ -113,11 +113,9 @@ def adaptive_replay(bags, params, settings: AdaptationSettings | None = None, *,
         rig = read_rig_states(path, topic)
         if len(rig) == 0:
             raise BagError(path, f"no RigState messages on {rig.topic}")
-        t = stamps_s(rig)
-        has = rig.has_measured_torque.astype(bool)
+        t, _, _, _, measured = model_inputs(rig.columns)
         if drop_torque_after is not None:
-            has = has & (t < t[0] + drop_torque_after)
-        measured = np.where(has, rig.measured_torque, np.nan)
+            measured = np.where(t < t[0] + drop_torque_after, measured, np.nan)
         out.append(_replay_one(ae, path, rig, t, measured))
     return out
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clutch_ros.bag.rig_states import REPLAY_FIELDS, read_rig_states
+from clutch_ros.bag.rig_states import REPLAY_FIELDS, model_inputs, read_rig_states
 from clutch_ros.config.params_file import load_yaml
 from clutch_ros.errors import ClutchError
 from clutch_ros.model.calibration import (
@@ -59,7 +59,7 @@ def load_runs(bags, piston_area: float, *, pdiff: bool = True,
                                            fixed=fixed)
     runs = []
     for (bag, rig), discs in zip(arrays, pressures):
-        measured = np.where(rig.has_measured_torque.astype(bool), rig.measured_torque, np.nan)
+        measured = model_inputs(rig.columns)[4]
         front, rear = discs if discs is not None else (None, None)
         runs.append(FitRun(rig.time, rig.actuating_pressure, rig.lamella_temperature,
                            rig.slip_speed, measured, name=bag.name, front_pressure=front,

@@ -27,11 +27,16 @@ import numpy as np
 from clutch_ros.bag.arrays import TemplateSerializer, write_columns
 from clutch_ros.bag.errors import BagError
 from clutch_ros.bag.reader import BagReader
-from clutch_ros.bag.rig_states import REPLAY_FIELDS, RigStateArrays, read_rig_states
+from clutch_ros.bag.rig_states import (
+    REPLAY_FIELDS,
+    RigStateArrays,
+    model_inputs,
+    read_rig_states,
+)
 from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, Typestore
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.model import accuracy_summary, estimate_batch, within_band
-from clutch_ros.offline.streaming import StreamedEstimate, model_inputs, spare_core
+from clutch_ros.offline.streaming import StreamedEstimate, spare_core
 
 __all__ = [
     "ESTIMATE_FIELDS",

@@ -27,9 +27,10 @@ from typing import Any
 
 import numpy as np
 
+from clutch_ros.bag.rig_states import model_inputs
 from clutch_ros.model import BatchEstimator
 
-__all__ = ["PIECE_ROWS", "StreamedEstimate", "model_inputs", "spare_core"]
+__all__ = ["PIECE_ROWS", "StreamedEstimate", "spare_core"]
 
 #: Smallest piece handed to the worker [samples]: per feed a few hundred µs of Python
 #: (rejections, filter, discretisation lookup, kernel call) against ~0.5 µs per sample.
@@ -42,22 +43,6 @@ def spare_core() -> bool:
         return len(os.sched_getaffinity(0)) > 1
     except AttributeError:  # pragma: no cover - not Linux
         return (os.cpu_count() or 1) > 1
-
-
-def model_inputs(columns: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
-    """Return the estimator's inputs from RigState columns: ``(t, p, temp, omega, measured)``.
-
-    ``t``: header stamps [s] as the node computes them (``sec + nanosec * 1e-9``, float64, so
-    both see bit-identical time steps); actuating pressure [Pa]; lamella temperature [°C];
-    slip speed [rad/s]; measured torque [N m], NaN where ``has_measured_torque`` is false.
-    Element by element, so a block's inputs are the whole stream's rows.
-    """
-    t = (columns["header.stamp.sec"].astype(np.float64)
-         + columns["header.stamp.nanosec"].astype(np.float64) * 1e-9)
-    measured = np.where(columns["has_measured_torque"].astype(bool),
-                        columns["measured_torque"], np.nan)
-    return (t, columns["actuating_pressure"], columns["lamella_temperature"],
-            columns["slip_speed"], measured)
 
 
 class StreamedEstimate:

@@ -29,42 +29,20 @@ def controller(ros_env):
 
 
 def test_trim_share_is_published_and_released_without_measurement(controller):
-    from clutch_msgs.msg import ClutchEstimate, PressureCommand, RigState, TorqueRequest
-
     from clutch_ros.config.params_file import load_params
     from clutch_ros.model.adaptation import scaled_params
-    from clutch_ros.model.inverse import capacity_scalar, pressure_for_torque
-    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+    from clutch_ros.model.inverse import pressure_for_torque
 
     params = scaled_params(load_params(PRESET), SCALE)
-    state = {"measured": True}
+    # the rig transmits 10 % less than the model at SCALE
+    state = {"request": REQUEST, "measured": 0.9, "std": 0.0}
     with Harness("trim_test") as h:
-        commands = h.collect(PressureCommand, "pressure_command", reliable_qos())
-        req_pub = h.node.create_publisher(TorqueRequest, "torque_request", reliable_qos())
-        rig_pub = h.node.create_publisher(RigState, "rig_state", sensor_qos())
-        est_pub = h.node.create_publisher(ClutchEstimate, "clutch_estimate", reliable_qos())
-
-        def tick():
-            now = h.node.get_clock().now().nanoseconds * 1e-9
-            req = TorqueRequest()
-            req.torque = REQUEST
-            req_pub.publish(req)
-            rig_pub.publish(rig_state(now))
-            est = ClutchEstimate()
-            pressure = commands[-1].pressure if commands else 0.0
-            est.modelled_torque = capacity_scalar(params, pressure, 40.0, W10)  # the model
-            est.measured_torque = (0.9 * est.modelled_torque if state["measured"]
-                                   else math.nan)  # the rig transmits 10 % less
-            est.lamella_temperature, est.slip_speed_filtered = 40.0, W10
-            est.friction_scale, est.spline_gain_scale = SCALE, 1.0
-            est_pub.publish(est)
-
-        h.node.create_timer(0.01, tick)
+        commands = _play(h, params, state)
         h.spin_until(lambda: len(commands) > 10 and commands[-1].pressure > 10e5, 60.0,
                      "pressure commands")
         h.spin_for(3.0)  # the trim converges (0.2 s time constant after 0.3 s delay)
         trimmed = commands[-1]
-        state["measured"] = False
+        state["measured"] = math.nan
         h.spin_for(1.0)  # longer than controller.trim_hold (0.25 s)
         released = commands[-1]
         assert controller.poll() is None, "controller died"
@@ -86,38 +64,16 @@ def test_unlearned_scale_is_inverted_at_its_upper_bound(controller):
     a measurement lets the trim act; the model at s is right here, so the trim then takes
     the command up to the best estimate's inverse, from below.
     """
-    from clutch_msgs.msg import ClutchEstimate, PressureCommand, RigState, TorqueRequest
-
     from clutch_ros.config.params_file import load_params
     from clutch_ros.model.adaptation import scaled_params
-    from clutch_ros.model.inverse import capacity_scalar, pressure_for_torque
-    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+    from clutch_ros.model.inverse import pressure_for_torque
 
     base = load_params(PRESET)
     params = scaled_params(base, SCALE)
-    state = {"request": 0.0}
+    # the model at SCALE is right; friction_scale_std 0.2: the adaptation's prior
+    state = {"request": 0.0, "measured": 1.0, "std": 0.2}
     with Harness("caution_test") as h:
-        commands = h.collect(PressureCommand, "pressure_command", reliable_qos())
-        req_pub = h.node.create_publisher(TorqueRequest, "torque_request", reliable_qos())
-        rig_pub = h.node.create_publisher(RigState, "rig_state", sensor_qos())
-        est_pub = h.node.create_publisher(ClutchEstimate, "clutch_estimate", reliable_qos())
-
-        def tick():
-            now = h.node.get_clock().now().nanoseconds * 1e-9
-            req = TorqueRequest()
-            req.torque = state["request"]
-            req_pub.publish(req)
-            rig_pub.publish(rig_state(now))
-            est = ClutchEstimate()
-            pressure = commands[-1].pressure if commands else 0.0
-            est.modelled_torque = capacity_scalar(params, pressure, 40.0, W10)
-            est.measured_torque = est.modelled_torque  # the model at SCALE is right
-            est.lamella_temperature, est.slip_speed_filtered = 40.0, W10
-            est.friction_scale, est.spline_gain_scale = SCALE, 1.0
-            est.friction_scale_std = 0.2  # the adaptation's prior: nothing learned
-            est_pub.publish(est)
-
-        h.node.create_timer(0.01, tick)
+        commands = _play(h, params, state)
         h.spin_until(lambda: len(commands) > 30, 60.0, "commands at rest (0 N m)")
         state["request"] = REQUEST
         h.spin_until(lambda: commands[-1].requested_torque == REQUEST, 10.0, "the step")
@@ -144,3 +100,39 @@ def test_unlearned_scale_is_inverted_at_its_upper_bound(controller):
 
 def _stamp(msg) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def _play(h, params, state):
+    """Play request, rig state and estimator to the controller every 10 ms; its commands.
+
+    ``state`` (read at each tick): ``request`` [N m]; ``measured``: the measured torque as a
+    factor of the model's torque at the last command (NaN: no measurement); ``std``: the
+    estimate's friction_scale_std [1]. The estimate's friction scale is SCALE.
+    """
+    from clutch_msgs.msg import ClutchEstimate, PressureCommand, RigState, TorqueRequest
+
+    from clutch_ros.model.inverse import capacity_scalar
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+
+    commands = h.collect(PressureCommand, "pressure_command", reliable_qos())
+    req_pub = h.node.create_publisher(TorqueRequest, "torque_request", reliable_qos())
+    rig_pub = h.node.create_publisher(RigState, "rig_state", sensor_qos())
+    est_pub = h.node.create_publisher(ClutchEstimate, "clutch_estimate", reliable_qos())
+
+    def tick():
+        now = h.node.get_clock().now().nanoseconds * 1e-9
+        req = TorqueRequest()
+        req.torque = state["request"]
+        req_pub.publish(req)
+        rig_pub.publish(rig_state(now))
+        est = ClutchEstimate()
+        pressure = commands[-1].pressure if commands else 0.0
+        est.modelled_torque = capacity_scalar(params, pressure, 40.0, W10)  # the model
+        est.measured_torque = state["measured"] * est.modelled_torque
+        est.lamella_temperature, est.slip_speed_filtered = 40.0, W10
+        est.friction_scale, est.spline_gain_scale = SCALE, 1.0
+        est.friction_scale_std = state["std"]
+        est_pub.publish(est)
+
+    h.node.create_timer(0.01, tick)
+    return commands
