@@ -266,8 +266,9 @@ class RigStateAssembler(can.Listener):
     def snapshot(self, now: float | None = None) -> RigSample:
         """Return a copy of the live :class:`RigSample` with ages and ``stale_mask`` set.
 
-        ``now`` [s] is the current time in the bus time base, used for the age check; when
-        None the newest decoded frame's timestamp is used (log replay).
+        ``now`` [s] is the time in the bus time base the groups are aged at; when None the
+        newest decoded frame's timestamp, the sample's own stamp (the can_bridge node, live
+        and from a log: a group is stale when it fell behind the rest of the bus).
         """
         with self._lock:
             sample = copy.copy(self._live)

@@ -167,7 +167,7 @@ class ReconnectingBus(can.BusABC):
         if drop_own_echo is None:
             drop_own_echo = (config.interface in ECHOING_INTERFACES
                              and not config.receive_own_messages)
-        self._echo = EchoFilter(clock) if drop_own_echo else None
+        self._echo = EchoFilter() if drop_own_echo else None  # bus time: time.time
         self._lock = threading.RLock()
         self._bus: can.BusABC | None = None
         self._state = LinkState.CONNECTING

@@ -58,7 +58,16 @@ class PumpGateConfig:
     ``rate_limit_down`` [Pa/s] (``math.inf`` = unlimited); ``watchdog_timeout`` [s]: no
     admitted command for longer than this sends 0 bar, and a command whose stamp is older
     than this is refused; ``future_tolerance`` [s]: a stamp further ahead of the command
-    clock than this is refused; ``accept_unstamped``: admit commands without a stamp.
+    clock than this is refused; ``accept_unstamped``: admit commands without a stamp;
+    ``max_step_interval`` [s]: the longest time between two frames the rate limits credit
+    (the bridge passes its ``pump.period``; ``math.inf`` credits all of it).
+
+    Why ``max_step_interval``: crediting the whole elapsed time lets a frame that leaves late
+    (a sender stalled for 50 ms on a loaded PC) carry the rise of every period it missed as
+    one step. A pump ECU that boosts fast rises (the kick of thesis §5.1.1) reads that step
+    as one, and overshoots, although the command never rose faster than the limit. Capped,
+    lateness slows the ramp instead: never faster than the limit, never a bigger step than
+    one on-time period allows.
     Raises :class:`clutch_ros.errors.ConfigError` when a value is out of range.
     """
 
@@ -68,6 +77,7 @@ class PumpGateConfig:
     watchdog_timeout: float = 0.1
     future_tolerance: float = 0.05
     accept_unstamped: bool = False
+    max_step_interval: float = math.inf
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_pressure) and self.max_pressure > 0.0):
@@ -80,6 +90,9 @@ class PumpGateConfig:
             raise ConfigError(
                 f"watchdog_timeout must be > 0 s, got {self.watchdog_timeout!r}"
             )
+        if math.isnan(self.max_step_interval) or self.max_step_interval <= 0.0:
+            raise ConfigError(f"max_step_interval must be > 0 s (inf = none), got "
+                              f"{self.max_step_interval!r}")
         if not (math.isfinite(self.future_tolerance) and self.future_tolerance >= 0.0):
             raise ConfigError(
                 f"future_tolerance must be >= 0 s, got {self.future_tolerance!r}"
@@ -279,7 +292,7 @@ class PumpCommandGate:
         self._fail_safe = fail_safe
 
     def _output(self, now: float) -> GateOutput:
-        dt = max(0.0, now - self._last_time)
+        dt = min(max(0.0, now - self._last_time), self.config.max_step_interval)
         self._last_time = now
         reasons = [self._target_reason] if self._target_reason else []
         target = self._target

@@ -19,6 +19,7 @@ instead of taking the link down.
 
 from __future__ import annotations
 
+import math
 import socket
 import sys
 import threading
@@ -123,12 +124,20 @@ class EchoFilter:
 
     :meth:`sent` records a frame before it is sent (:meth:`unsent` takes it back when the
     send fails); :meth:`is_echo` returns True -- once per recorded copy -- for a received
-    frame equal to one sent within ``window`` [s] (identifier, flags and payload; the
-    timestamp is the receiver's). At most ``capacity`` frames are remembered, so an
-    interface that stops echoing costs bounded memory. ``clock`` returns seconds.
+    frame equal to one sent at most ``window`` [s] before the frame's receive timestamp
+    (identifier, flags and payload). At most ``capacity`` frames are remembered, so an
+    interface that stops echoing costs bounded memory. ``clock`` returns the current time
+    [s] in the time base of the received frames' timestamps (udp_multicast: the kernel
+    receive time, ``time.time``); a frame without a timestamp is taken as received now.
+
+    Records expire in *stream* time, by the timestamps of the frames received, never by the
+    clock alone: a reader that falls behind (10,000 frames/s of fuzz queued for over a second
+    in the socket) still meets its echoes, which arrive in order after the frames sent
+    before them; expiring them by the clock had counted 16 own PumpRequests as another
+    node's in such a burst.
     """
 
-    def __init__(self, clock: Callable[[], float] = time.monotonic, window: float = 1.0,
+    def __init__(self, clock: Callable[[], float] = time.time, window: float = 1.0,
                  capacity: int = 4096) -> None:
         self._clock = clock
         self._window = window
@@ -139,9 +148,14 @@ class EchoFilter:
         #: echoes recognised and removed
         self.echoes = 0
 
-    def _expire(self, now: float) -> None:
+    def _expire(self, stream_time: float | None) -> None:
+        """Forget records sent over ``window`` before ``stream_time`` [s] and above capacity.
+
+        ``stream_time`` None: the capacity only.
+        """
         order, pending = self._order, self._pending
-        while order and (now - order[0][0] > self._window or len(order) > self._capacity):
+        horizon = -math.inf if stream_time is None else stream_time - self._window
+        while order and (order[0][0] < horizon or len(order) > self._capacity):
             _, sig = order.popleft()
             left = pending.get(sig, 0) - 1
             if left > 0:
@@ -153,10 +167,9 @@ class EchoFilter:
         """Record ``msg`` as about to be sent."""
         sig = _signature(msg)
         with self._lock:
-            now = self._clock()
-            self._order.append((now, sig))
+            self._order.append((self._clock(), sig))
             self._pending[sig] = self._pending.get(sig, 0) + 1
-            self._expire(now)
+            self._expire(None)
 
     def unsent(self, msg: can.Message) -> None:
         """Forget the most recent record of ``msg`` (its send failed)."""
@@ -177,8 +190,9 @@ class EchoFilter:
         if not self._pending:
             return False
         sig = _signature(msg)
+        stamp = float(msg.timestamp)
         with self._lock:
-            self._expire(self._clock())
+            self._expire(stamp if math.isfinite(stamp) and stamp > 0.0 else self._clock())
             count = self._pending.get(sig, 0)
             if count == 0:
                 return False

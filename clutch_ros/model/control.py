@@ -147,7 +147,10 @@ class ControllerSettings:
         trim_hold: a torque measurement missing for up to this long holds the trim (a late
             CAN frame); longer, the trim is released (off without a measurement) [s]
         step_threshold: a request change above this fraction of the request is a step
-            (ramps move by less per tick) [1]
+            (ramps move by less per tick) when it is also faster than ``lead_max_rate``:
+            a ramp sample published late moves by more than the fraction, but at the ramp's
+            slope (live, 0.05-0.15 s gaps between the demo's ramp requests each released
+            the trim for ``trim_delay``, and a ramp-down then overshot by 13 %) [1]
         scale_tolerance: re-invert with a new friction scale when it moved by this [1]
         trim_reset_on_change: release the trim at every step of the request (the model's
             residual error depends on the operating point and on the direction the pack
@@ -244,6 +247,7 @@ class TorqueController:
         self.trim = 0.0  # [1] relative trim u
         self._changed_at = -math.inf  # [s] last change of the request
         self._now = -math.inf  # [s] time of the last request
+        self._stamp = -math.inf  # [s] its own stamp
         self._history: list[tuple[float, float]] = []
         self._pending: tuple[float, float, float] | None = None
         self._moved = True  # the request changed since the last tick
@@ -312,19 +316,28 @@ class TorqueController:
                        else scaled_params(self.base_params, friction_scale, spline_gain_scale))
         self.friction_scale, self.spline_gain_scale = friction_scale, spline_gain_scale
 
-    def set_request(self, t: float, torque: float) -> str:
-        """Record a torque request at time ``t`` [s]; return a warning for a bad value."""
+    def set_request(self, t: float, torque: float, stamp: float | None = None) -> str:
+        """Record a torque request received at time ``t`` [s]; return a warning for a bad value.
+
+        ``stamp`` [s]: the request's own time (its header stamp; None: ``t``), which dates the
+        change for the step test (``step_threshold``), so requests delivered in a bunch keep
+        the spacing they were published with.
+        """
         warning = ""
         if not math.isfinite(torque) or torque < 0.0:
             warning = f"torque request {torque!r} N m is not a finite value >= 0; using 0 N m"
             torque = 0.0
+        stamp = t if stamp is None else stamp
         if torque != self.request:
             self._moved = True
-            if abs(torque - self.request) > self.settings.step_threshold * max(torque,
-                                                                               self.request):
+            change = abs(torque - self.request)
+            elapsed = stamp - self._stamp
+            if (change > self.settings.step_threshold * max(torque, self.request)
+                    and not change <= self.settings.lead_max_rate * elapsed):
                 self._changed_at = t
                 if self.settings.trim_reset_on_change:
                     self.trim = 0.0
+        self._stamp = stamp
         self.request = torque
         self._now = t
         self._history.append((t, torque))

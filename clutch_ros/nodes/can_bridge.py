@@ -14,8 +14,14 @@ decoded into the live sample, diagnosed), and published only while active. Each 
 one path: the assembler decodes it into the live sample, the pacer decides, the sample
 becomes ``rig_state`` stamped with the newest contributing frame's bus time: at once when
 the ``bridge.publish_on`` frame arrives (at most ``bridge.rate``), or on a ``bridge.rate``
-timer when that is empty. Stale signal groups are flagged in ``stale_mask``. Our own frames
-looped back by the interface are removed by the bus.
+timer when that is empty. Stale signal groups are flagged in ``stale_mask``, aged at the
+sample's own stamp (the newest frame's bus time), as in a log replay: a group is stale when it
+fell behind the rest of the bus, not when this node ran late. How late the node publishes
+(wall clock minus the sample's stamp) is reported apart, as ``receive_lag_max_s`` on
+/diagnostics (a WARN above ``LAG_WARN``): on a loaded 2-core machine the bridge fell 80-110 ms
+behind a healthy bus, and ageing against the wall clock flagged every sample of that backlog
+stale, which removed the torque measurement from coherent data. Our own frames looped back
+by the interface are removed by the bus.
 
 Send: ``pressure_command`` goes through :class:`clutch_ros.canbus.PumpCommandGate` (clamp to
 ``pump.max_pressure``, rate limit, 0 bar after ``pump.watchdog_timeout`` without an admitted
@@ -133,6 +139,7 @@ class CanBridgeNode(LifecycleNode):
             self._stop, self._offset, self._last_stamp = threading.Event(), None, None
             self._last_report = self._stale = None
             self._published = self._stale_reports = self._foreign_requests = 0
+            self._lag_max = 0.0  # [s] wall clock - sample stamp, largest since the last report
             self._last_new, self._idle_warned = time.monotonic(), False
             if cfg["input.log_file"]:
                 self._source = LogSource(cfg["input.log_file"], realtime=cfg["input.realtime"])
@@ -327,9 +334,10 @@ class CanBridgeNode(LifecycleNode):
             if newest is not None and self._offset is None:  # relative clocks -> the epoch
                 skew = time.time() - newest
                 self._offset = skew if abs(skew) > 3600.0 else 0.0
-            if newest is None or not self._publish(
-                    self._assembler.snapshot(time.time() - self._offset)):
+            if newest is None or not self._publish(self._assembler.snapshot()):
                 self._pacer.refund()
+                return
+            self._lag_max = max(self._lag_max, time.time() - self._offset - newest)
 
     def _publish(self, sample) -> bool:
         if sample.stamp is None or sample.stamp == self._last_stamp or not self._active:

@@ -54,8 +54,8 @@ PARAMS = [
     _ro("bridge.publish_raw", False, "publish every frame on can_frames; read-only: decides "
         "at configure whether can_frames is advertised"),
     ParamSpec("pump.max_pressure", 40e5, "largest pressure ever requested", "Pa", 1e4, 60e5),
-    ParamSpec("pump.rate_limit", 400e5, "maximum rise of the requested pressure", "Pa/s",
-              1e3, 1e10),
+    ParamSpec("pump.rate_limit", 400e5, "maximum rise of the requested pressure; a frame "
+              "that leaves late rises by at most one pump.period's worth", "Pa/s", 1e3, 1e10),
     ParamSpec("pump.watchdog_timeout", 0.2, "no pressure_command for this long -> 0 bar; "
               "more than pump.period", "s", 0.005, 60.0),
     ParamSpec("pump.period", 0.01, "PumpRequest repetition period (the DBC cycle); less than "
@@ -79,7 +79,7 @@ PARAMS = [
 
 #: parameters of the pump gate (applied with :meth:`PumpCommandGate.reconfigure`)
 GATE_PARAMS = ("pump.max_pressure", "pump.rate_limit", "pump.watchdog_timeout",
-               "pump.future_tolerance", "pump.accept_unstamped")
+               "pump.future_tolerance", "pump.accept_unstamped", "pump.period")
 #: parameters applied live
 LIVE = frozenset(s.name for s in PARAMS if not s.read_only)
 
@@ -90,7 +90,8 @@ def gate_config(values: Mapping[str, object]) -> PumpGateConfig:
                           rate_limit_up=values["pump.rate_limit"],
                           watchdog_timeout=values["pump.watchdog_timeout"],
                           future_tolerance=values["pump.future_tolerance"],
-                          accept_unstamped=values["pump.accept_unstamped"])
+                          accept_unstamped=values["pump.accept_unstamped"],
+                          max_step_interval=values["pump.period"])
 
 
 def signal_specs(values: Mapping[str, object]) -> dict[str, str]:

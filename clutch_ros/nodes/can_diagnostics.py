@@ -6,9 +6,10 @@ groups are stale, frames were dropped, decode or error frames were seen since th
 report, another node sent PumpRequest frames (the bridge's own echo is removed by the bus,
 so any PumpRequest received means a second master on the pump), malformed datagrams were
 dropped, pressure commands were refused (stale, future, out of order, unstamped, foreign
-source), or the pump watchdog tripped; ERROR as well when more than one node publishes
-``pressure_command``. OK otherwise. Counts are totals since start; rates are per second
-since the previous report.
+source), the pump watchdog tripped, or a rig_state went out more than :data:`LAG_WARN` after
+its newest frame (``receive_lag_max_s``, the largest since the previous report); ERROR as
+well when more than one node publishes ``pressure_command``. OK otherwise. Counts are totals
+since start; rates are per second since the previous report.
 
 Size: the values are bounded whatever the bus carries (per-identifier rates for the DBC's
 frames only, the ten most frequent unknown identifiers in one value with the rest summed,
@@ -37,6 +38,9 @@ def hardware_id(params) -> str:
     bus = f"{params['can.interface']}:{params['can.channel']}"
     return f"simulated rig ({bus})" if params["can.interface"] in SOFTWARE_BUSES else bus
 
+#: [s] a rig_state published this long after its newest frame makes the status WARN: the
+#: controller's default ``controller.rig_timeout`` (0.25 s), when data that late is refused.
+LAG_WARN = 0.25
 #: Most key/values one status carries (a guard; the values are bounded by construction).
 MAX_VALUES = 200
 
@@ -101,6 +105,10 @@ def bridge_status(assembler, bus, gate, rig_keys, extra: dict):
             problems.append(f"{new} new {what}")
             level = "WARN" if level == "OK" else level
         prev[key] = values.get(key, 0)
+    if extra.get("receive_lag_max_s", 0.0) > LAG_WARN:
+        problems.append(f"published up to {extra['receive_lag_max_s']:.3f} s after the bus "
+                        "(this node runs late)")
+        level = "WARN" if level == "OK" else level
     if extra.get("stale_groups"):
         problems.append(f"stale: {extra['stale_groups']}")
         level = "WARN" if level == "OK" else level
@@ -118,10 +126,10 @@ def node_status(bridge, idle_timeout: float):
     """Return the /diagnostics ``(level, message, values)`` of a ``CanBridgeNode``.
 
     Unconfigured: its lifecycle state only. Otherwise :func:`bridge_status` with the node's
-    own values (lifecycle state, rig_state published, stale groups, command publishers or
-    the log replay); the message starts with the state unless active. An idle bus (no new
-    rig frame for ``idle_timeout`` [s]) while active logs one warning, and one line when
-    frames come back.
+    own values (lifecycle state, rig_state published, stale groups, the largest publishing lag
+    since the previous report [s], command publishers or the log replay); the message starts
+    with the state unless active. An idle bus (no new rig frame for ``idle_timeout`` [s]) while
+    active logs one warning, and one line when frames come back.
     """
     state = bridge._state
     if bridge._assembler is None:
@@ -137,6 +145,7 @@ def node_status(bridge, idle_timeout: float):
     extra = {"lifecycle_state": state, "rig_state_published": bridge._published,
              "stale_samples": bridge._stale_reports,
              "stale_groups": ", ".join(bridge._stale or []),
+             "receive_lag_max_s": bridge._lag_max,
              "foreign_pump_requests": bridge._foreign_requests}
     source, thread = bridge._source, bridge._log_thread
     if source is None:
@@ -144,6 +153,7 @@ def node_status(bridge, idle_timeout: float):
     else:
         extra.update(log_file=str(source.path), log_frames=source.frames_read,
                      log_done=thread is not None and not thread.is_alive())
+    bridge._lag_max = 0.0  # the next report covers the next period
     level, message, values = bridge_status(bridge._assembler, bridge._bus, bridge._gate,
                                            bridge._pacer.fallback, extra)
     return level, (message if bridge._active else f"{state}; {message}"), values

@@ -55,6 +55,7 @@ from clutch_ros.nodes.parameters import declare_params
 from clutch_ros.nodes.peers import Input, PeerWatch
 from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 from clutch_ros.nodes.runner import run_node
+from clutch_ros.nodes.stamps import stamp_to_sec
 
 NAME = "controller"
 
@@ -135,7 +136,8 @@ class ControllerNode(Node):
     def _on_request(self, msg) -> None:
         now = self._now()
         self._peers.seen("torque request", now)
-        warning = self._ctl.set_request(now, msg.torque)
+        stamp = stamp_to_sec(msg.header.stamp)
+        warning = self._ctl.set_request(now, msg.torque, stamp if stamp > 0.0 else None)
         if warning:
             self._counts["bad_requests"] += 1
             if self._warn.ready():

@@ -29,7 +29,8 @@ PARAMS = [
               "slope: pack lag c/k (0.1 s), pump lag (~0.05 s) and transport delay", "s",
               0.0, 2.0),
     ParamSpec("controller.lead_max_rate", 1000.0, "bound of the request slope used by the "
-              "lead (steps are not differentiated into spikes)", "N m/s", 0.0, 1e6),
+              "lead (steps are not differentiated into spikes); a faster request change is a "
+              "step (the trim holds, trim_delay)", "N m/s", 0.0, 1e6),
     ParamSpec("controller.overshoot_margin", 0.05, "overshoot guard: pressure never above the "
               "steady-state inverse of (1 + margin) x request", "1", 0.0, 1.0),
     ParamSpec("controller.spline_correction_gain", 1.0, "weight of the dynamic spline-friction "

@@ -303,7 +303,9 @@ def test_echo_filter_unit():
     assert not echo.is_echo(a)  # nothing sent yet
     echo.sent(a)
     echo.sent(a)
-    assert echo.is_echo(can.Message(arbitration_id=0x80, data=b"\x01\x02", timestamp=5.0))
+    # the timestamp is the receiver's: 0.5 s after the send it is still this frame's echo
+    assert echo.is_echo(can.Message(arbitration_id=0x80, data=b"\x01\x02",
+                                    timestamp=clock.t + 0.5))
     assert echo.is_echo(a) and not echo.is_echo(a)  # once per copy sent
     assert not echo.is_echo(can.Message(arbitration_id=0x80, data=b"\x01\x02",
                                         is_extended_id=True))
@@ -318,6 +320,25 @@ def test_echo_filter_unit():
     assert not echo.is_echo(can.Message(arbitration_id=0))
     assert echo.is_echo(can.Message(arbitration_id=4))
     assert echo.echoes == 3
+
+
+def test_echo_filter_expires_in_stream_time_so_a_late_reader_meets_its_echoes():
+    """Records expire by the received frames' timestamps, not by the clock of a late reader."""
+    clock = FakeClock()
+    echo = EchoFilter(clock, window=1.0)
+    mine = can.Message(arbitration_id=0x80, data=b"\x05", timestamp=0.0)
+    echo.sent(mine)  # sent at t = 1000.0 (kernel time of its echo: the same)
+    clock.t += 5.0  # the reader is 5 s behind: 5 s of other frames were queued before the echo
+    other = can.Message(arbitration_id=0x81, data=b"\x01", timestamp=1000.0)
+    assert not echo.is_echo(other)
+    echo_back = can.Message(arbitration_id=0x80, data=b"\x05", timestamp=1000.0001)
+    assert echo.is_echo(echo_back)
+    # the control: a frame received 1.5 s after a send is another node's, even when equal
+    echo.sent(mine)
+    clock.t += 0.1
+    assert not echo.is_echo(can.Message(arbitration_id=0x80, data=b"\x05",
+                                        timestamp=clock.t + 1.4))
+    assert echo.echoes == 1
 
 
 def test_udp_multicast_echo_removed_and_groups_isolated():

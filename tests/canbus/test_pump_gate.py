@@ -4,6 +4,7 @@ import math
 import random
 
 import pytest
+from numpy.testing import assert_allclose
 
 from clutch_ros.canbus.dbc import PumpRequestCodec
 from clutch_ros.canbus.pump_gate import PumpCommandGate, PumpGateConfig
@@ -298,3 +299,32 @@ def test_gate_config_validation(db):
             PumpGateConfig(**kwargs)
     with pytest.raises(ConfigError):
         PumpCommandGate(FakeClock(), PumpGateConfig(max_pressure=70e5))
+
+
+def test_a_late_frame_rises_by_one_period_at_most(db):
+    """A frame after a stall carries one period's rise, not the whole stall's (the kick)."""
+    clock = FakeClock()
+    capped = make_gate(db, clock, rate_limit_up=90 * BAR, watchdog_timeout=10.0,
+                       max_step_interval=0.01)
+    uncapped = make_gate(db, clock, rate_limit_up=90 * BAR, watchdog_timeout=10.0)
+    for gate in (capped, uncapped):
+        command(gate, clock, 0.0)
+    clock.t += 0.01
+    for gate in (capped, uncapped):
+        gate.tick()
+        gate.submit(20e5, clock.t)
+    steps = {id(g): [] for g in (capped, uncapped)}
+    previous = {id(g): g.applied_pressure for g in (capped, uncapped)}
+    for dt in (0.01, 0.01, 0.05, 0.01, 0.03, 0.01):  # two late ticks
+        clock.t += dt
+        for gate in (capped, uncapped):
+            out = gate.tick()
+            steps[id(gate)].append(out.pressure - previous[id(gate)])
+            previous[id(gate)] = out.pressure
+    # 90 bar/s x 10 ms = 0.9 bar per frame at most, late or not (+ the 100 Pa resolution)
+    assert max(steps[id(capped)]) <= 0.9 * BAR + 100.0
+    assert_allclose(sum(steps[id(capped)]), 6 * 0.9 * BAR, atol=200.0)  # 2 x 100 Pa rounding
+    # the control: crediting the whole stall releases 4.5 bar in one frame
+    assert max(steps[id(uncapped)]) >= 4.5 * BAR - 100.0
+    with pytest.raises(ConfigError, match="max_step_interval"):
+        PumpGateConfig(max_step_interval=0.0)

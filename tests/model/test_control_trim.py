@@ -218,3 +218,24 @@ def test_caution_shrinks_with_the_std(flexiforce):
 def test_uncertainty_margin_must_not_be_negative():
     with pytest.raises(ModelError, match="uncertainty_margin"):
         ControllerSettings(uncertainty_margin=-0.1)
+
+
+def test_a_late_ramp_sample_is_no_step_but_a_fast_change_is(flexiforce):
+    """A late ramp sample is no step; a change faster than ``lead_max_rate`` is.
+
+    Published 0.15 s late, a ramp request moves by more than ``step_threshold`` but at the
+    ramp's slope: the trim keeps integrating.
+    """
+    s = ControllerSettings(rise_rate_limit=1e9, fall_rate_limit=1e9)
+    ctl, _ = _static_loop(flexiforce, s, 600.0, 1.1)
+    held = ctl.trim
+    assert held != 0.0 and s.step_threshold * 600.0 < 26.0  # 26 N m: more than the fraction
+    t = 400 * s.period
+    ctl.set_request(t + 0.15, 600.0 - 26.0, stamp=t + 0.15)  # 173 N m/s after a 0.15 s gap
+    assert ctl.trim == held
+    # delivered in a bunch, the stamps keep the spacing they were published with
+    ctl.set_request(t + 0.151, 600.0 - 52.0, stamp=t + 0.30)
+    assert ctl.trim == held
+    # the control: the same 26 N m as the next 20 ms sample is 1300 N m/s, a step
+    ctl.set_request(t + 0.171, 600.0 - 78.0, stamp=t + 0.32)
+    assert ctl.trim == 0.0

@@ -261,8 +261,12 @@ def test_fuzz_through_the_node_and_quiet_idle_bus(tmp_path):
                 rate = len(frames) / (time.perf_counter() - start)
                 tx.send(final)
             total = exp.frames_total + 1
-            h.spin_until(lambda: _diag(diags, "/can_bridge").get("frames_total") == str(total),
-                         60.0, f"{total} frames counted")
+            try:
+                h.spin_until(lambda: _diag(diags, "/can_bridge").get("frames_total")
+                             == str(total), 60.0, f"{total} frames counted")
+            except AssertionError as err:  # say where the count stopped
+                raise AssertionError(f"{err}; sent at {rate:.0f}/s; last /can_bridge status: "
+                                     f"{_diag(diags, '/can_bridge')}") from None
             h.spin_until(lambda: states and states[-1].input_speed == pytest.approx(
                 final_values["InputShaftSpeed"], abs=1e-3), 30.0, "the final RigState")
             h.spin_for(1.5)

@@ -1,0 +1,114 @@
+"""The can_bridge node running late: coherent bus data is not flagged stale, the lag is reported.
+
+``stale_mask`` ages each signal group at the sample's own stamp (the newest frame's bus time,
+see ``clutch_ros.nodes.can_bridge``). A bridge that falls behind the bus (here: stopped with
+SIGSTOP for 50 ms, three times, while the simulated rig keeps sending 1 kHz frames) publishes
+its backlog late, and those samples must carry the bus as it was at their stamp, without
+stale flags; how late it ran shows on /diagnostics as ``receive_lag_max_s``.
+
+The oracle is the bus itself (a python-can receiver in this process, kernel receive times as
+in ``tests/nodes/test_can_bridge.py``): for every RigState, the expected ``stale_mask`` is
+computed from the frames up to its stamp with the assembler's group ages, so a real gap of
+the rig (it is a Python process on a loaded machine too) is expected to be flagged, and the
+bridge's own lateness is not.
+"""
+
+import bisect
+import os
+import signal
+import time
+
+import pytest
+
+from clutch_ros.canbus import RigDatabase, RigStateAssembler
+from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
+from tests.canbus.recorder import BusRecorder, bus_params, private_group
+from tests.nodes.rclpy_harness import Harness
+
+pytestmark = pytest.mark.ros
+
+DB = RigDatabase()
+GROUPS = RigStateAssembler(DB).groups
+STAMP_EPS = 2e-6  # [s] float64 seconds since 1970 -> builtin_interfaces/Time round trip
+STOP = 0.05  # [s] each SIGSTOP: ~120 rig frames queue in the bridge's socket, none is lost
+
+
+def _stamp(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def _expected_mask(stamp: float, times: dict[str, list[float]]) -> int | None:
+    """Return the stale_mask of the bus at ``stamp`` [s]; None within 10 us of a limit."""
+    mask = 0
+    for group in GROUPS:
+        seen = []
+        for name in group.messages:
+            ts = times.get(name, [])
+            i = bisect.bisect_right(ts, stamp + STAMP_EPS)
+            if i:
+                seen.append(ts[i - 1])
+        if not seen:
+            mask |= (1 << group.bit) if group.required and group.messages else 0
+            continue
+        if len(seen) < len(group.messages):
+            mask |= 1 << group.bit
+            continue
+        age = stamp - min(seen)
+        if abs(age - group.max_age) < 1e-5:
+            return None
+        mask |= (1 << group.bit) if age > group.max_age else 0
+    return mask
+
+
+def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_path):
+    from clutch_msgs.msg import RigState
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from clutch_ros.nodes.qos import sensor_qos
+
+    group, port = private_group()
+    env = isolated_ros_env(int(os.environ["ROS_DOMAIN_ID"]))
+    got = []  # (receive wall time [s], RigState)
+    with BusRecorder(group, port) as rec:
+        procs = [NodeProcess(name, ["--ros-args", *ros_param_args(params)], env, tmp_path)
+                 for name, params in (("rig_sim", {**bus_params(group, port),
+                                                   "rig.slip_speed": 1.047}),
+                                      ("can_bridge", bus_params(group, port)))]
+        try:
+            with Harness("can_bridge_lag_test") as h:
+                h.node.create_subscription(RigState, "rig_state",
+                                           lambda m: got.append((time.time(), m)), sensor_qos())
+                diags = h.collect(DiagnosticArray, "/diagnostics", 50)
+                h.spin_until(lambda: len(got) > 100, 90.0, "rig_state from the bridge")
+                for _ in range(3):
+                    os.kill(procs[1].pid, signal.SIGSTOP)
+                    time.sleep(STOP)
+                    os.kill(procs[1].pid, signal.SIGCONT)
+                    h.spin_for(0.4)
+                h.spin_for(1.2)  # one more /diagnostics report
+                assert all(p.alive() for p in procs)
+        finally:
+            for p in procs:
+                p.stop()
+
+    times: dict[str, list[float]] = {}
+    for frame in rec.frames:
+        spec = DB.lookup(frame.arbitration_id)
+        if spec is not None:
+            times.setdefault(spec.name, []).append(frame.timestamp)
+    start = min(ts[0] for ts in times.values()) + 0.6  # every 100 ms frame seen once
+    checked = [(rt, m) for rt, m in got if _stamp(m) > start]
+    assert len(checked) > 500
+    # the bridge did run late: samples went out well after their stamp
+    late = max(rt - _stamp(m) for rt, m in checked)
+    assert late > 0.8 * STOP, late
+    mismatches = []
+    for rt, msg in checked:
+        expected = _expected_mask(_stamp(msg), times)
+        if expected is not None and msg.stale_mask != expected:
+            mismatches.append((round(_stamp(msg) - start, 3), round(rt - _stamp(msg), 3),
+                               msg.stale_mask, expected))
+    assert not mismatches, mismatches[:20]
+    lags = [float(kv.value) for a in diags for s in a.status if s.name == "/can_bridge"
+            for kv in s.values if kv.key == "receive_lag_max_s"]
+    assert lags and max(lags) > 0.8 * STOP, lags
