@@ -28,6 +28,9 @@ PARAMS = [
     ParamSpec("controller.lead_time", 0.2, "the target is advanced by lead_time x the request "
               "slope: pack lag c/k (0.1 s), pump lag (~0.05 s) and transport delay", "s",
               0.0, 2.0),
+    ParamSpec("controller.fall_lead_time", _C.fall_lead_time, "lead_time on a falling "
+              "request: pump lag, transport delay and the pack's hysteresis at the reversal "
+              "add up there", "s", 0.0, 2.0),
     ParamSpec("controller.lead_max_rate", 1000.0, "bound of the request slope used by the "
               "lead (steps are not differentiated into spikes); a faster request change is a "
               "step (the trim holds, trim_delay)", "N m/s", 0.0, 1e6),
@@ -44,6 +47,9 @@ PARAMS = [
               "request", "1", 0.0, 1.0),
     ParamSpec("controller.trim_delay", _C.trim_delay, "the trim holds this long after a step "
               "of the request (the pack's step transient)", "s", 0.0, 10.0),
+    ParamSpec("controller.trim_settle_time", _C.trim_settle_time, "up to this long after a "
+              "step the trim also holds while the model-vs-measured error is beyond its bounds "
+              "(trim_limit: the step's transient)", "s", 0.0, 30.0),
     ParamSpec("controller.trim_hold", _C.trim_hold, "a torque measurement missing for up to "
               "this long holds the trim (a late frame); longer releases it", "s", 0.0, 10.0),
     ParamSpec("controller.uncertainty_margin", _C.uncertainty_margin, "while the trim can act, "
@@ -75,8 +81,10 @@ def controller_settings(cfg: dict) -> ControllerSettings:
         fall_rate_limit=cfg["controller.fall_rate_limit"],
         torque_ramp_rate=cfg["controller.torque_ramp_rate"],
         lead_time=cfg["controller.lead_time"], lead_max_rate=cfg["controller.lead_max_rate"],
+        fall_lead_time=cfg["controller.fall_lead_time"],
         overshoot_margin=cfg["controller.overshoot_margin"],
         correction_gain=cfg["controller.spline_correction_gain"],
         trim_rate=cfg["controller.trim_rate"], trim_limit=cfg["controller.trim_limit"],
         trim_delay=cfg["controller.trim_delay"], trim_hold=cfg["controller.trim_hold"],
+        trim_settle_time=cfg["controller.trim_settle_time"],
         uncertainty_margin=cfg["controller.uncertainty_margin"])

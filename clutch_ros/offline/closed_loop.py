@@ -8,7 +8,10 @@ The same classes as the live suite (:class:`clutch_ros.rig.RigPlant`,
 ``settings.period`` on the latest estimate (its adapted friction scale, the scale's standard
 deviation and the measured torque for the trim, as the controller node takes them from
 ``clutch_estimate``); one estimator
-period of transport delay between plant and controller. It answers "does the control law
+period of transport delay between plant and controller, and ``command_delay`` [s] between
+the controller's command and the pump (0 by default; live, DDS, the bridge's PumpRequest cycle
+and the simulated rig's own lateness add 20-100 ms on a loaded 2-core PC, which
+``clutch closed-loop --delay`` reproduces without timing noise). It answers "does the control law
 hold ±10 % (and the plateaus within 2 %) on this plant?" in seconds and without timing
 noise, and is what the controller's defaults were tuned with (``clutch closed-loop``).
 """
@@ -16,6 +19,7 @@ noise, and is what the controller's defaults were tuned with (``clutch closed-lo
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,14 +68,19 @@ class ClosedLoopResult:
 def run_closed_loop(estimator_params, plant, profile: list[Segment], settings=None,
                     dt: float = 1e-3, estimator_period: float = 0.01,
                     adaptation: AdaptationSettings | None = None,
-                    rated_torque: float | None = None) -> ClosedLoopResult:
+                    rated_torque: float | None = None,
+                    command_delay: float = 0.0) -> ClosedLoopResult:
     """Run ``profile`` through plant, estimator and controller; see the module docstring.
 
     ``adaptation`` runs the adaptive estimator (the controller then inverts the adapted
     model and trims on the measured torque if ``settings.trim_rate`` > 0); None the plain
     estimator (the feed-forward path; the controller gets no measured torque).
     ``rated_torque`` [N m] sets the 10 % plateau threshold of ``steady_state_error``.
+    ``command_delay`` [s]: each command reaches the pump this long after the controller
+    issued it (rounded to plant steps; the pump keeps the previous one meanwhile).
     """
+    if not (math.isfinite(command_delay) and command_delay >= 0.0):
+        raise ValueError(f"command_delay must be a finite delay >= 0 s, got {command_delay!r}")
     controller = TorqueController(estimator_params, settings)
     if adaptation is not None:
         estimator = AdaptiveEstimator(estimator_params, adaptation)
@@ -87,6 +96,9 @@ def run_closed_loop(estimator_params, plant, profile: list[Segment], settings=No
     estimate = None
     status = None
     command = trim = 0.0
+    lag = int(round(command_delay / dt))
+    in_flight: deque[tuple[int, float]] = deque()  # (plant step it arrives at, command [Pa])
+    applied = 0.0
     for i in range(n):
         t = i * dt
         request = request_at(profile, t)
@@ -105,7 +117,10 @@ def run_closed_loop(estimator_params, plant, profile: list[Segment], settings=No
                                         estimate.spline_correction, measured,
                                         estimate.modelled_torque, scale)
                 command, trim = ctl.pressure, ctl.trim_pressure
-        signals = plant.step(dt, command, slip_at(profile, t))
+            in_flight.append((i + lag, command))
+        while in_flight and in_flight[0][0] <= i:
+            applied = in_flight.popleft()[1]
+        signals = plant.step(dt, applied, slip_at(profile, t))
         if i % est_every == 0:
             res = estimator.update(t, signals.actuating_pressure, signals.lamella_temperature,
                                    signals.slip_speed, signals.measured_torque)

@@ -239,3 +239,34 @@ def test_a_late_ramp_sample_is_no_step_but_a_fast_change_is(flexiforce):
     # the control: the same 26 N m as the next 20 ms sample is 1300 N m/s, a step
     ctl.set_request(t + 0.171, 600.0 - 78.0, stamp=t + 0.32)
     assert ctl.trim == 0.0
+
+
+def test_trim_holds_through_a_late_transient_then_acts(flexiforce):
+    """After ``trim_delay`` the trim still holds while the measurement is beyond its reach.
+
+    The plant's torque arrives late (a pressure path slow: measured 0 until 0.3 s after
+    ``trim_delay``, then the true c = 1.05 x model): the trim must not integrate the missing torque,
+    and once the measurement is in reach it converges as before. The control with
+    ``trim_settle_time`` 0 winds up to its bound.
+    """
+    def run(settle):
+        s = ControllerSettings(rise_rate_limit=1e9, fall_rate_limit=1e9,
+                               trim_settle_time=settle, uncertainty_margin=0.0)
+        ctl = TorqueController(flexiforce, s)
+        late = s.trim_delay + 0.3  # [s] the torque arrives
+        peak = 0.0
+        for k in range(300):
+            t = k * s.period
+            ctl.set_request(t, 600.0)
+            model = capacity_scalar(flexiforce, ctl.pressure, TEMP, W10)
+            meas = 0.0 if t < late else 1.05 * model
+            ctl.update(TEMP, W10, 0.0, meas, model, 1.0)
+            if t < late:
+                peak = max(peak, abs(ctl.trim))
+        return ctl, peak
+
+    held, peak = run(ControllerSettings.trim_settle_time)
+    assert peak == 0.0  # the missing torque was never integrated
+    assert_allclose(held.trim, 1.0 / 1.05 - 1.0, rtol=1e-4)  # then it converged
+    wound, peak = run(0.0)
+    assert_allclose(peak, ControllerSettings.trim_limit, rtol=1e-9)  # the control: at its bound

@@ -78,7 +78,7 @@ def test_unlearned_scale_is_inverted_at_its_upper_bound(controller):
         state["request"] = REQUEST
         h.spin_until(lambda: commands[-1].requested_torque == REQUEST, 10.0, "the step")
         stepped = len(commands) - 1
-        h.spin_for(3.0)  # trim_delay 0.5 s, then the trim converges (0.125 s constant)
+        h.spin_for(3.0)  # trim_delay 0.8 s, then the trim converges (0.125 s constant)
         assert controller.poll() is None, "controller died"
 
     step_t = _stamp(commands[stepped])

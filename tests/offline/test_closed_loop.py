@@ -41,7 +41,7 @@ def test_lead_and_correction_each_matter(params, profile):
     base = ControllerSettings()
     full = run_closed_loop(params, RigPlant.from_file("rig_truth", seed=0), profile, base)
     no_lead = run_closed_loop(params, RigPlant.from_file("rig_truth", seed=0), profile,
-                              ControllerSettings(lead_time=0.0))
+                              ControllerSettings(lead_time=0.0, fall_lead_time=0.0))
     no_corr = run_closed_loop(params, RigPlant.from_file("rig_truth", seed=0), profile,
                               ControllerSettings(correction_gain=0.0))
     assert no_lead.within_10pct < full.within_10pct - 0.1
@@ -83,3 +83,47 @@ def test_rise_rate_limit_and_immediate_fail_safe(params):
     assert pressures[-1] > 20e5
     out = ctl.fail_safe("stale estimate")
     assert out.pressure == 0.0 and "stale estimate" in out.reason
+
+
+def test_command_delay_reaches_the_pump_that_much_later(params, profile):
+    """``command_delay``: the pump starts building pressure that much after the first command."""
+    first = {}
+    for delay in (0.0, 0.08):
+        r = run_closed_loop(params, RigPlant.from_file("rig_truth", seed=0), profile[:2],
+                            command_delay=delay)
+        k = np.argmax(r.pressure_command > 0.0)
+        # 0.5 bar: well above the pressure sensor's noise at 0 bar
+        building = k + np.argmax(r.actuating_pressure[k:] > 0.5e5)
+        first[delay] = r.time[building] - r.time[k]
+    # rounded to 1 ms plant steps (the only tolerance; the plant is deterministic)
+    np.testing.assert_allclose(first[0.08] - first[0.0], 0.08, atol=1.5e-3)
+    with pytest.raises(ValueError, match="command_delay"):
+        run_closed_loop(params, RigPlant.from_file("rig_truth", seed=0), profile[:2],
+                        command_delay=-0.01)
+
+
+def test_fall_lead_time_leads_falling_requests_only(params):
+    """The lead on a falling request is ``fall_lead_time`` x slope; rising uses ``lead_time``."""
+    def run(settings, start, end):
+        ctl = TorqueController(params, settings)
+        n = 40  # 0.4 s of a 250 N m/s ramp at the 100 Hz control period
+        for k in range(n):
+            t = k * settings.period
+            ctl.set_request(t, start + (end - start) * k / n)
+            out = ctl.update(40.0, W10)
+        return ctl, out
+
+    short = ControllerSettings(rise_rate_limit=1e9, fall_rate_limit=1e9, fall_lead_time=0.2)
+    long_ = ControllerSettings(rise_rate_limit=1e9, fall_rate_limit=1e9, fall_lead_time=0.4)
+    (a, down_short), (b, down_long) = run(short, 700.0, 600.0), run(long_, 700.0, 600.0)
+    slope = a.request_slope()
+    assert slope < 0.0
+    # the lead's torque: 0.2 s more of a -250 N m/s slope -> -50 N m; compare the pressures
+    # the steady-state inverse gives for the two targets (same solve, 1e-9 relative)
+    expected_short = command_pressure(params, a.target + 0.2 * slope, 40.0, W10)
+    expected_long = command_pressure(params, b.target + 0.4 * slope, 40.0, W10)
+    np.testing.assert_allclose(down_short.pressure, expected_short.pressure, rtol=1e-9)
+    np.testing.assert_allclose(down_long.pressure, expected_long.pressure, rtol=1e-9)
+    assert down_long.pressure < down_short.pressure
+    # rising: fall_lead_time plays no part (same bits)
+    assert run(short, 600.0, 700.0)[1].pressure == run(long_, 600.0, 700.0)[1].pressure
