@@ -7,6 +7,7 @@ receives every group joined on that port by anyone unless it clears ``IP_MULTICA
 
 from __future__ import annotations
 
+import bisect
 import random
 import socket
 import threading
@@ -127,3 +128,42 @@ class BusRecorder:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def frame_times(frames, db) -> dict[str, list[float]]:
+    """Return the recorded bus times [s] of each DBC message (by name), in order."""
+    times: dict[str, list[float]] = {}
+    for frame in frames:
+        spec = db.lookup(frame.arbitration_id)
+        if spec is not None:
+            times.setdefault(spec.name, []).append(frame.timestamp)
+    return times
+
+
+def expected_stale_mask(stamp: float, times: dict[str, list[float]], groups,
+                        eps: float = 2e-6) -> int | None:
+    """Return the ``stale_mask`` the bus itself gives at ``stamp`` [s]: the oracle.
+
+    ``times``: :func:`frame_times`; ``groups``: ``RigStateAssembler.groups``. Each group is
+    aged at ``stamp`` (its oldest frame's newest time up to ``stamp + eps``), as the bridge
+    does. None when an age is within 10 us of its limit (float rounding could go either way).
+    """
+    mask = 0
+    for group in groups:
+        seen = []
+        for name in group.messages:
+            ts = times.get(name, [])
+            i = bisect.bisect_right(ts, stamp + eps)
+            if i:
+                seen.append(ts[i - 1])
+        if not seen:
+            mask |= (1 << group.bit) if group.required and group.messages else 0
+            continue
+        if len(seen) < len(group.messages):
+            mask |= 1 << group.bit
+            continue
+        age = stamp - min(seen)
+        if abs(age - group.max_age) < 1e-5:
+            return None
+        mask |= (1 << group.bit) if age > group.max_age else 0
+    return mask

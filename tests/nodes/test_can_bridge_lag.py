@@ -13,7 +13,6 @@ the rig (it is a Python process on a loaded machine too) is expected to be flagg
 bridge's own lateness is not.
 """
 
-import bisect
 import os
 import signal
 import time
@@ -22,42 +21,24 @@ import pytest
 
 from clutch_ros.canbus import RigDatabase, RigStateAssembler
 from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
-from tests.canbus.recorder import BusRecorder, bus_params, private_group
+from tests.canbus.recorder import (
+    BusRecorder,
+    bus_params,
+    expected_stale_mask,
+    frame_times,
+    private_group,
+)
 from tests.nodes.rclpy_harness import Harness
 
 pytestmark = pytest.mark.ros
 
 DB = RigDatabase()
 GROUPS = RigStateAssembler(DB).groups
-STAMP_EPS = 2e-6  # [s] float64 seconds since 1970 -> builtin_interfaces/Time round trip
 STOP = 0.05  # [s] each SIGSTOP: ~120 rig frames queue in the bridge's socket, none is lost
 
 
 def _stamp(msg) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-
-
-def _expected_mask(stamp: float, times: dict[str, list[float]]) -> int | None:
-    """Return the stale_mask of the bus at ``stamp`` [s]; None within 10 us of a limit."""
-    mask = 0
-    for group in GROUPS:
-        seen = []
-        for name in group.messages:
-            ts = times.get(name, [])
-            i = bisect.bisect_right(ts, stamp + STAMP_EPS)
-            if i:
-                seen.append(ts[i - 1])
-        if not seen:
-            mask |= (1 << group.bit) if group.required and group.messages else 0
-            continue
-        if len(seen) < len(group.messages):
-            mask |= 1 << group.bit
-            continue
-        age = stamp - min(seen)
-        if abs(age - group.max_age) < 1e-5:
-            return None
-        mask |= (1 << group.bit) if age > group.max_age else 0
-    return mask
 
 
 def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_path):
@@ -91,11 +72,7 @@ def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_pat
             for p in procs:
                 p.stop()
 
-    times: dict[str, list[float]] = {}
-    for frame in rec.frames:
-        spec = DB.lookup(frame.arbitration_id)
-        if spec is not None:
-            times.setdefault(spec.name, []).append(frame.timestamp)
+    times = frame_times(rec.frames, DB)
     start = min(ts[0] for ts in times.values()) + 0.6  # every 100 ms frame seen once
     checked = [(rt, m) for rt, m in got if _stamp(m) > start]
     assert len(checked) > 500
@@ -104,7 +81,7 @@ def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_pat
     assert late > 0.8 * STOP, late
     mismatches = []
     for rt, msg in checked:
-        expected = _expected_mask(_stamp(msg), times)
+        expected = expected_stale_mask(_stamp(msg), times, GROUPS)
         if expected is not None and msg.stale_mask != expected:
             mismatches.append((round(_stamp(msg) - start, 3), round(rt - _stamp(msg), 3),
                                msg.stale_mask, expected))
