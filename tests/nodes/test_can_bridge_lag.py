@@ -21,6 +21,7 @@ import pytest
 
 from clutch_ros.canbus import RigDatabase, RigStateAssembler
 from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
+from clutch_ros.nodes.stamps import stamp_to_sec
 from tests.canbus.recorder import (
     BusRecorder,
     bus_params,
@@ -35,10 +36,6 @@ pytestmark = pytest.mark.ros
 DB = RigDatabase()
 GROUPS = RigStateAssembler(DB).groups
 STOP = 0.05  # [s] each SIGSTOP: ~120 rig frames queue in the bridge's socket, none is lost
-
-
-def _stamp(msg) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
 def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_path):
@@ -74,17 +71,18 @@ def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_pat
 
     times = frame_times(rec.frames, DB)
     start = min(ts[0] for ts in times.values()) + 0.6  # every 100 ms frame seen once
-    checked = [(rt, m) for rt, m in got if _stamp(m) > start]
+    checked = [(rt, m) for rt, m in got if stamp_to_sec(m.header.stamp) > start]
     assert len(checked) > 500
     # the bridge did run late: samples went out well after their stamp
-    late = max(rt - _stamp(m) for rt, m in checked)
+    late = max(rt - stamp_to_sec(m.header.stamp) for rt, m in checked)
     assert late > 0.8 * STOP, late
     mismatches = []
     for rt, msg in checked:
-        expected = expected_stale_mask(_stamp(msg), times, GROUPS)
+        stamp = stamp_to_sec(msg.header.stamp)
+        expected = expected_stale_mask(stamp, times, GROUPS)
         if expected is not None and msg.stale_mask != expected:
-            mismatches.append((round(_stamp(msg) - start, 3), round(rt - _stamp(msg), 3),
-                               msg.stale_mask, expected))
+            mismatches.append((round(stamp - start, 3), round(rt - stamp, 3), msg.stale_mask,
+                               expected))
     assert not mismatches, mismatches[:20]
     lags = [float(kv.value) for a in diags for s in a.status if s.name == "/can_bridge"
             for kv in s.values if kv.key == "receive_lag_max_s"]
