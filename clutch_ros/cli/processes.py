@@ -54,10 +54,15 @@ class NodeProcess:
     """One node in its own process; ``stop()`` shuts it down cleanly and returns its code."""
 
     def __init__(self, name: str, args: list[str], env: dict, log_dir: Path,
-                 executable: str | None = None):
+                 executable: str | None = None, own_session: bool = True):
         """Start ``clutch_ros.nodes.<executable>`` (default: ``name``), logging to log_dir.
 
-        ``name`` names the log file (``<name>.log``) and the node in messages.
+        ``name`` names the log file (``<name>.log``) and the node in messages. The node never
+        gets the terminal's Ctrl-C (its own process group; ``stop()`` ends it in order).
+        ``own_session`` (default) also gives it a session of its own, and so, on Linux with
+        ``autogroup`` scheduling (the default of most kernels, and of this machine's), a CPU
+        share of its own: the scheduler first splits a busy machine equally between sessions,
+        then between the processes in each. False keeps it in this process's session.
         """
         self.name = name
         log_dir.mkdir(parents=True, exist_ok=True)
@@ -69,8 +74,9 @@ class NodeProcess:
         self._log = open(self.log_path, "w")  # noqa: SIM115 - closed in stop()
         cmd = [sys.executable, "-m", f"clutch_ros.nodes.{executable or name}", *args]
         try:
+            group = {"start_new_session": True} if own_session else {"process_group": 0}
             self._proc = subprocess.Popen(cmd, env=env, stdout=self._log,
-                                          stderr=subprocess.STDOUT, start_new_session=True)
+                                          stderr=subprocess.STDOUT, **group)
         except OSError as err:
             self._log.close()
             raise ClutchError(f"cannot start node {name}: {err}") from err

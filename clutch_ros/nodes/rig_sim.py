@@ -15,7 +15,10 @@ Frames are stamped with the wall clock (like a real adapter's receive time).
 
 Only ``rig.slip_speed`` changes at run time (operator mode); the bus, the plant, the scenario,
 the step and the seed are read-only (fixed when the simulation starts). Its /diagnostics
-``hardware_id`` is ``simulated rig (interface:channel)``.
+``hardware_id`` is ``simulated rig (interface:channel)``; it reports ``overruns`` and
+``lost_time_s`` [s], the real time the loop dropped when it fell more than 0.1 s behind (a
+machine short of CPU: the simulated world then runs slower than real time), and is WARN in a
+report whose period dropped any.
 """
 
 from __future__ import annotations
@@ -95,6 +98,7 @@ class RigSimNode(Node):
         self._sim = RigSimulator(plant, self._scenario, self._port, dt=cfg["rig.dt"],
                                  stamp_clock=time.time)
         self._stats = None
+        self._lost_reported = 0.0  # [s] sim.lost_time at the last /diagnostics report
         self._thread = threading.Thread(target=self._run, name="rig_sim", daemon=True)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose, hardware_id=(
@@ -133,7 +137,8 @@ class RigSimNode(Node):
                   "pump_requests": port.received - port.other_frames,
                   "invalid_pump_requests": port.monitor.invalid,
                   "requested_pressure_pa": port.requested_pressure(sim.time),
-                  "own_echoes_dropped": self._bus.own_echoes}
+                  "own_echoes_dropped": self._bus.own_echoes,
+                  "overruns": sim.overruns, "lost_time_s": sim.lost_time}
         if sim.signals is not None:
             values.update(actuating_pressure_pa=sim.signals.actuating_pressure,
                           true_torque_nm=sim.signals.true_torque,
@@ -142,6 +147,10 @@ class RigSimNode(Node):
             if self._stats is not None:
                 return "OK", f"scenario '{self._scenario.name}' done", values
             return "WARN", "simulation not running", values
+        lost, self._lost_reported = sim.lost_time - self._lost_reported, sim.lost_time
+        if lost > 0.0:  # the plant did not run for that long: a slowed world, not a rig's
+            return "WARN", (f"simulation fell behind real time and dropped {lost:.3f} s since "
+                            "the last report (the machine is short of CPU)"), values
         return "OK", f"running '{self._scenario.name}'", values
 
     def close(self) -> None:

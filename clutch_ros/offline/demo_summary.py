@@ -31,9 +31,16 @@ class DemoSeries:
         est_t, model, ref, est_meas, pdiff = [], [], [], [], []
         scale, scale_std = [], []
         cmd_t, cmd_p, cmd_trim = [], [], []
+        lost = []  # (log time [s], the rig's lost_time_s) from its /diagnostics
         with BagReader(bag) as reader:
-            for topic, stamp_ns, msg in reader.messages(
-                    ["/rig_state", "/clutch_estimate", "/pressure_command"]):
+            topics = ["/rig_state", "/clutch_estimate", "/pressure_command"]
+            topics += ["/diagnostics"] if "/diagnostics" in reader.topics else []
+            for topic, stamp_ns, msg in reader.messages(topics):
+                if topic == "/diagnostics":
+                    lost += [(stamp_ns * 1e-9, float(kv.value)) for st in msg.status
+                             if st.name == "/rig_sim" for kv in st.values
+                             if kv.key == "lost_time_s"]
+                    continue
                 if topic == "/rig_state":
                     rig_t.append(_stamp(msg))
                     meas.append(msg.measured_torque if msg.has_measured_torque else math.nan)
@@ -67,6 +74,12 @@ class DemoSeries:
         self.cmd_pressure = np.asarray(cmd_p)
         self.cmd_trim = np.asarray(cmd_trim)
         self.settled = settled_mask(profile, self.rig_time)
+        before = [v for t, v in lost if t <= started_at]
+        #: [s] real time the simulated rig dropped during the profile (it fell more than
+        #: 0.1 s behind: a machine short of CPU; reports are 1 s apart). 0 when it never
+        #: did; NaN when the bag holds no rig_sim report.
+        self.rig_lost_time = (max(v for _, v in lost) - (before[-1] if before else 0.0)
+                              if lost else math.nan)
 
 
 def _stamp(msg) -> float:
@@ -134,4 +147,5 @@ def closed_loop_summary(bag, profile, started_at: float, rated_torque: float | N
         "estimates": int(len(s.est_time)),
         "commands": int(len(s.cmd_time)),
         "max_command_pa": float(s.cmd_pressure.max()) if len(s.cmd_pressure) else 0.0,
+        "rig_lost_time_s": s.rig_lost_time,
     }

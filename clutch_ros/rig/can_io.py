@@ -297,7 +297,7 @@ class RigCanPort:
                 counter = self._counters[name]
                 self._counters[name] = (counter + 1) % 16
             out.append(self.db.make_message(name, _clamped(self.db, values), counter=counter,
-                                            timestamp=stamp))
+                                            timestamp=stamp, strict=False))  # clamped here
         return out
 
     def send_due(self, now: float, signals, timestamp: float | None = None) -> int:

@@ -160,8 +160,8 @@ class FlexiForceArray:
         if self.params.slip_redistribution > 0.0 and slip_speed:
             tilt = math.tanh(abs(float(slip_speed)) / self.params.redistribution_speed)
             shares = shares + self._move * tilt
-        lamella = np.repeat([max(float(front_force), 0.0), max(float(rear_force), 0.0)],
-                            SENSORS_PER_LAMELLA)
+        front, rear = max(float(front_force), 0.0), max(float(rear_force), 0.0)
+        lamella = np.array((front,) * SENSORS_PER_LAMELLA + (rear,) * SENSORS_PER_LAMELLA)
         return shares * lamella
 
     def clean_voltages(self, sensor_forces) -> np.ndarray:
@@ -184,4 +184,5 @@ class FlexiForceArray:
         v = self._gains * self.params.nominal_voltage(forces)
         if noise:
             v = v + self._noise_std * self._rng.standard_normal(v.shape[0])
-        return np.clip(v, 0.0, self.params.output_max)
+        # = np.clip(v, 0, output_max), same values; np.clip costs 3 us on 8 elements
+        return np.minimum(np.maximum(v, 0.0), self.params.output_max)

@@ -217,7 +217,7 @@ class RigPlant:
         n = self.params.noise
         self._noise_scale = np.array([n.torque, n.pressure, n.pump_pressure, n.speed,
                                       n.temperature, n.temperature, n.current])
-        self._noise = np.zeros((0, 7))
+        self._noise: list[list[float]] = []  # rows of 7 (Python floats: cheap arithmetic)
         self._noise_index = 0
         self.reset()
 
@@ -253,9 +253,10 @@ class RigPlant:
         """True slip speed ω_diff (= input shaft speed) [rad/s]."""
         return self._slip
 
-    def _next_noise(self) -> np.ndarray:
-        if self._noise_index >= self._noise.shape[0]:
-            self._noise = self._noise_rng.standard_normal((_NOISE_BLOCK, 7)) * self._noise_scale
+    def _next_noise(self) -> list[float]:
+        if self._noise_index >= len(self._noise):
+            block = self._noise_rng.standard_normal((_NOISE_BLOCK, 7)) * self._noise_scale
+            self._noise = block.tolist()  # same float64 values as the array's
             self._noise_index = 0
         row = self._noise[self._noise_index]
         self._noise_index += 1

@@ -114,6 +114,8 @@ class RigSimulator:
             raise RigConfigError("a closed-loop scenario needs a CAN port or a pressure_source")
         self.time = 0.0
         self.steps = 0
+        self.overruns = 0  # real-time runs: times the loop fell more than max_lag behind
+        self.lost_time = 0.0  # [s] real time those overruns dropped (not simulated)
         self.signals: RigSignals | None = None
         self._stop = threading.Event()
         if reset_plant:
@@ -173,6 +175,7 @@ class RigSimulator:
             raise RigConfigError(f"duration must be >= 0 s, got {duration!r}")
         self._stop.clear()
         stats = RunStats()
+        overruns0 = self.overruns
         sent0 = self.port.sent if self.port is not None else 0
         n_steps = math.inf if math.isinf(duration) else round(duration / self.dt)
         start = clock()
@@ -187,12 +190,14 @@ class RigSimulator:
                     sleep(next_tick - now)
                     continue
                 if now - next_tick > max_lag:
-                    stats.overruns += 1
+                    self.overruns += 1
+                    self.lost_time += now - next_tick
                     next_tick = now
                 next_tick += self.dt
             self.step()
             stats.steps += 1
         stats.wall_time = clock() - start
+        stats.overruns = self.overruns - overruns0
         stats.sim_time = self.time
         stats.frames_sent = (self.port.sent - sent0) if self.port is not None else 0
         return stats

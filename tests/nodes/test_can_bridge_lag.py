@@ -36,6 +36,13 @@ pytestmark = pytest.mark.ros
 DB = RigDatabase()
 GROUPS = RigStateAssembler(DB).groups
 STOP = 0.05  # [s] each SIGSTOP: ~120 rig frames queue in the bridge's socket, none is lost
+AFTER = 300  # samples collected after the stops, whatever the machine's load
+
+
+def stamp_span(got) -> float:
+    """Return the time [s] the received RigState stamps span."""
+    return (stamp_to_sec(got[-1][1].header.stamp) - stamp_to_sec(got[0][1].header.stamp)
+            if got else 0.0)
 
 
 def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_path):
@@ -57,12 +64,15 @@ def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_pat
                 h.node.create_subscription(RigState, "rig_state",
                                            lambda m: got.append((time.time(), m)), sensor_qos())
                 diags = h.collect(DiagnosticArray, "/diagnostics", 50)
-                h.spin_until(lambda: len(got) > 100, 90.0, "rig_state from the bridge")
+                # waits are for data, not for time: a loaded machine publishes fewer samples
+                h.spin_until(lambda: stamp_span(got) > 1.0, 90.0, "1 s of rig_state")
                 for _ in range(3):
                     os.kill(procs[1].pid, signal.SIGSTOP)
                     time.sleep(STOP)
                     os.kill(procs[1].pid, signal.SIGCONT)
                     h.spin_for(0.4)
+                n = len(got)
+                h.spin_until(lambda: len(got) > n + AFTER, 60.0, f"{AFTER} more rig_state")
                 h.spin_for(1.2)  # one more /diagnostics report
                 assert all(p.alive() for p in procs)
         finally:
@@ -72,7 +82,7 @@ def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_pat
     times = frame_times(rec.frames, DB)
     start = min(ts[0] for ts in times.values()) + 0.6  # every 100 ms frame seen once
     checked = [(rt, m) for rt, m in got if stamp_to_sec(m.header.stamp) > start]
-    assert len(checked) > 500
+    assert len(checked) > AFTER  # the waits above guarantee this much unless samples vanished
     # the bridge did run late: samples went out well after their stamp
     late = max(rt - stamp_to_sec(m.header.stamp) for rt, m in checked)
     assert late > 0.8 * STOP, late

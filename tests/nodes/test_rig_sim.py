@@ -11,6 +11,8 @@ A python-can receiver in this process records the rig's private udp_multicast gr
 
 import math
 import os
+import signal
+import time
 
 import numpy as np
 import pytest
@@ -59,7 +61,8 @@ def test_slip_speed_parameter_changes_the_bus(tmp_path):
                 assert all(abs(w) < 0.05 for w in _speeds(rec)[-100:])
                 before = rec.count(RIG_SPEED)
                 assert _set(h, client, "rig.slip_speed", 3.0).successful
-                rec.wait_for(lambda: rec.count(RIG_SPEED) > before + 500, 30.0, "500 frames")
+                applied = rec.count(RIG_SPEED)  # counted from the reply: a slow reply is no bias
+                rec.wait_for(lambda: rec.count(RIG_SPEED) > applied + 500, 30.0, "500 frames")
                 after = _speeds(rec, before)
                 assert np.mean(after[-100:]) == pytest.approx(3.0, abs=0.02)
                 # the motor follows with its time constant: the change shows on the bus
@@ -114,6 +117,48 @@ def test_table3_scenario_pressure_sequence_on_the_bus(tmp_path):
     assert np.abs(bus - expected).max() <= DB.signal("ActuatingPressure").resolution * 0.51
     speeds = [DB.decode(RIG_SPEED, f.data)["InputShaftSpeed"] for f in rec.of(RIG_SPEED)]
     assert np.mean(speeds[2000:10000]) == pytest.approx(10 * math.pi / 30, abs=0.01)  # 10 rpm
+
+
+def _rig_reports(diags) -> list[tuple[int, float, int]]:
+    """(level, lost_time_s, overruns) of each /rig_sim status received."""
+    out = []
+    for array in diags:
+        for st in array.status:
+            if st.name == "/rig_sim":
+                kv = {v.key: v.value for v in st.values}
+                out.append((st.level[0] if isinstance(st.level, bytes) else int(st.level),
+                            float(kv["lost_time_s"]), int(kv["overruns"])))
+    return out
+
+
+def test_a_stalled_rig_reports_the_real_time_it_dropped(tmp_path):
+    """SIGSTOP 0.5 s: the loop drops the backlog beyond 0.1 s and says so on /diagnostics."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    group, port = private_group()
+    with BusRecorder(group, port) as rec:
+        rig = _rig(bus_params(group, port), tmp_path)
+        try:
+            with Harness("rig_sim_stall_test") as h:
+                diags = h.collect(DiagnosticArray, "/diagnostics", 50)
+                h.spin_until(lambda: _rig_reports(diags) and rec.count(RIG_FAST) > 500, 60.0,
+                             "the rig's frames and a report")
+                before = _rig_reports(diags)[-1][1]
+                os.kill(rig.pid, signal.SIGSTOP)
+                time.sleep(0.5)
+                os.kill(rig.pid, signal.SIGCONT)
+                n = len(_rig_reports(diags))
+                h.spin_until(lambda: len(_rig_reports(diags)) > n + 1, 30.0, "two more reports")
+                assert rig.alive()
+        finally:
+            rig.stop()
+    reports = _rig_reports(diags)
+    # 0.5 s stopped, at most max_lag (0.1 s) of it caught up; scheduling adds to it (atol)
+    dropped = reports[-1][1] - before
+    assert 0.35 <= dropped <= 1.0, reports
+    assert reports[-1][2] >= 1
+    warned = [r for r in reports[n - 1:] if r[0] == DiagnosticStatus.WARN[0]]
+    assert warned, reports  # the report covering the stall is WARN
 
 
 def test_bad_parameters_fail_at_start_with_one_line(ros_env):

@@ -6,6 +6,8 @@ import uuid
 import can
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from clutch_ros.canbus.dbc import PumpRequestCodec, RigDatabase
 from clutch_ros.rig.can_io import FrameScheduler, RigCanPort
@@ -217,5 +219,45 @@ def test_realtime_run_is_paced_and_stoppable(db, buses):
     stats = sim.run(0.01, realtime=True, clock=clock, sleep=sleep)
     assert stats.overruns == 1 and stats.steps == 10
     assert stats.wall_time == pytest.approx(5.01, abs=0.002)  # no burst to catch up
+    # the live counters (the node's /diagnostics) hold the dropped real time: the 5 s freeze
+    # less the 1 ms tick it ended in; the 0.4 ms clock reads make the rest (atol 2 ms)
+    assert sim.overruns == 1
+    assert sim.lost_time == pytest.approx(5.0, abs=0.002)
     with pytest.raises(RigConfigError):
         RigSimulator(RigPlant(), closed_loop_run())
+
+
+_ANY = st.floats(allow_nan=True, allow_infinity=True, width=64) | st.sampled_from(
+    [0.0, -1e12, 1e12, 65.535e5, 65.536e5])
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(pressure=_ANY, torque=_ANY, speed=_ANY, temp=_ANY, volt=_ANY, current=_ANY)
+def test_rig_frames_skip_the_range_check_only_for_values_already_clamped(
+        pressure, torque, speed, temp, volt, current):
+    """The rig's frames (cantools strict=False) equal strict encodes of the clamped values.
+
+    Whatever the plant hands the port: NaN, inf, far out of range.
+    """
+    import dataclasses
+
+    from clutch_ros.rig.can_io import _clamped
+
+    db = RigDatabase()
+    port = RigCanPort(None, db)  # frames_due never touches the bus
+    plant = RigPlant(seed=1)
+    base = plant.step(1e-3, 20e5, 3.0, torque_request=100.0)
+    signals = dataclasses.replace(
+        base, actuating_pressure=pressure, measured_torque=torque, input_speed=speed,
+        output_speed=speed, lamella_temperature=temp, oil_temperature=temp,
+        ff_voltages=np.full(8, volt), wheel_speeds=np.full(4, speed), pump_current=current,
+        pump_pressure=pressure, torque_request=torque)
+    frames = port.frames_due(0.1, signals)
+    assert {db.lookup(f.arbitration_id).name for f in frames} >= {"RigFast", "RigSpeed"}
+    for frame in frames:
+        spec = db.lookup(frame.arbitration_id)
+        counter = (db.decode(frame.arbitration_id, frame.data)[spec.counter_signal]
+                   if spec.counter_signal is not None else None)
+        values = _clamped(db, port.frame_values(spec.name, signals, 0.1))
+        assert frame.data == bytearray(db.encode(spec.name, values, counter=counter,
+                                                 strict=True)), spec.name
