@@ -90,6 +90,37 @@ def test_no_kick_on_a_ramp_even_as_a_can_staircase():
     assert p.max() <= 40 * BAR
 
 
+def _staircase_kick(rate: float) -> float:
+    """Largest kick [Pa] of a ``rate`` [Pa/s] ramp to 25 bar sent as a 10 ms staircase.
+
+    The pump of the demo's truth plant (the ``rig_truth`` preset).
+    """
+    from clutch_ros.rig import RigPlant
+
+    pump = RigPlant.from_file("rig_truth", seed=0).pump
+    t = DT * np.arange(1000)
+    request = np.minimum(rate * np.floor(t / 0.01) * 0.01, 25 * BAR)
+    kicks = []
+    for r in request:
+        pump.step(DT, r)
+        kicks.append(pump.kick)
+    return max(kicks)
+
+
+def test_the_demo_rise_rate_is_below_the_kick_threshold_as_a_staircase():
+    """The demo's 75 bar/s (PUMP_RISE) sends no kick; 90 bar/s kicks in the ripple.
+
+    The ECU's 100 bar/s threshold applies to its smoothed request; a 10 ms staircase at
+    90 bar/s steps 0.9 bar at once, and the smoothed rate right after each step is above
+    100 bar/s although the mean is 90.
+    """
+    from clutch_ros.cli.demo import PUMP_RISE
+
+    assert PUMP_RISE == 75 * BAR
+    assert _staircase_kick(PUMP_RISE) == 0.0
+    assert _staircase_kick(90 * BAR) > 1.0 * BAR  # 1.25 bar
+
+
 def test_no_kick_on_release_and_smaller_kicks_on_small_steps():
     pump = PumpModel()
     pump.reset(40 * BAR)
