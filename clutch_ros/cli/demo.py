@@ -138,7 +138,7 @@ def run(args) -> int:
             # does: it alone gets a session, so a CPU share, of its own (NodeProcess); the
             # nodes under test share this process's. On a 2-core machine with each node in a
             # session of its own, five equal shares of ~40 % left the rig (~40 % of a core at
-            # 1 kHz) short, and it dropped 3-7 s of a 30 s run: a slowed world.
+            # 1 kHz) short, and it dropped 3-10 s of a 30 s run: a slowed world.
             procs.append(NodeProcess(name, ["--ros-args", *node_args], env, out / "logs",
                                      own_session=name == "rig_sim"))
         written, driver = _drive(profile, procs, out, args)
