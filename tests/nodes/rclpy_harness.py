@@ -70,6 +70,42 @@ class Harness:
                 raise AssertionError(f"timed out after {timeout} s waiting for {what}")
             self.executor.spin_once(timeout_sec=0.01)
 
+    def call(self, client, request, timeout: float = 30.0, resend: float = 2.0):
+        """Call a service and return its response; for *idempotent* requests only.
+
+        ``wait_for_service`` returns once the client has matched the service, but the
+        service's response writer may not have matched the client's response reader yet
+        (DDS discovery is asymmetric; ros2/ros2#1253, ros2/rmw_connextdds#132): that first
+        response is lost and a plain ``call_async`` waits for ever. So the request is sent
+        again every ``resend`` seconds [s] until one answer arrives within ``timeout`` [s]
+        (``resend`` inf: sent once, for a request that is not idempotent).
+        """
+        assert client.wait_for_service(timeout_sec=timeout), client.srv_name
+
+        return self.until_answered(lambda: client.call_async(request), client.srv_name,
+                                   timeout, resend, client.remove_pending_request)
+
+    def until_answered(self, send, what: str, timeout: float = 30.0, resend: float = 2.0,
+                       drop=None):
+        """Return the result of ``send()``'s future, calling ``send`` again every ``resend`` s.
+
+        For idempotent requests (see :meth:`call`), e.g. ``lambda:
+        parameter_client.set_parameters([...])``; ``drop(future)`` forgets an unanswered one.
+        """
+        end = time.monotonic() + timeout
+        while True:
+            future = send()
+            again = min(end, time.monotonic() + resend)
+            while not future.done() and time.monotonic() < again:
+                self.executor.spin_once(timeout_sec=0.01)
+            if future.done():
+                return future.result()
+            if drop is not None:
+                drop(future)
+            if time.monotonic() >= end:
+                raise AssertionError(f"timed out after {timeout} s waiting for the answer "
+                                     f"of {what}")
+
 
 def assert_bad_settings_fail_at_start(node: str, cases: dict, env: dict) -> None:
     """Start ``clutch_ros.nodes.<node>`` once per case ``{name: (ros args, text)}``.

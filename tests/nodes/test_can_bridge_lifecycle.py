@@ -14,6 +14,7 @@ every PumpRequest frame (kernel receive times, the same for every socket on the 
   inactive, 0 bar sent on deactivate, publishing resumes on activate, cleanup closes the bus.
 """
 
+import math
 import os
 import threading
 import time
@@ -73,11 +74,9 @@ def _bridge(args, logs):
                        isolated_ros_env(int(os.environ["ROS_DOMAIN_ID"])), logs)
 
 
-def _call(h, client, request, timeout=10.0):
-    assert client.wait_for_service(timeout_sec=timeout), client.srv_name
-    future = client.call_async(request)
-    h.spin_until(future.done, timeout, f"the answer of {client.srv_name}")
-    return future.result()
+def _call(h, client, request, timeout=30.0, resend=2.0):
+    """Call a service (Harness.call: an idempotent request is resent until answered)."""
+    return h.call(client, request, timeout, resend)
 
 
 def _set(h, client, name, value):
@@ -230,12 +229,12 @@ def test_lifecycle_configure_activate_deactivate(tmp_path):
                 change = h.node.create_client(ChangeState, "/can_bridge/change_state")
                 get = h.node.create_client(GetState, "/can_bridge/get_state")
 
-                def state():
-                    return _call(h, get, GetState.Request(), 30.0).current_state.label
+                def state():  # idempotent: resent until answered (Harness.call)
+                    return h.call(get, GetState.Request()).current_state.label
 
                 def transition(tid):
-                    return _call(h, change, ChangeState.Request(
-                        transition=Transition(id=tid))).success
+                    return _call(h, change, ChangeState.Request(  # sent once: not idempotent
+                        transition=Transition(id=tid)), resend=math.inf).success
 
                 def command_for(seconds, pressure):
                     end = time.monotonic() + seconds
@@ -244,6 +243,11 @@ def test_lifecycle_configure_activate_deactivate(tmp_path):
                         h.spin_for(0.02)
 
                 labels = [state()]
+                # a transition is not idempotent: first a request that changes nothing (an
+                # unknown label is refused without a side effect), resent until the service
+                # answers, so the first real transition's answer cannot be lost in discovery
+                assert not h.call(change, ChangeState.Request(
+                    transition=Transition(label="no_such_transition"))).success
                 assert transition(Transition.TRANSITION_CONFIGURE)
                 labels.append(state())
                 command_for(1.0, 10 * BAR)  # inactive: commands refused, nothing published

@@ -98,14 +98,11 @@ def test_adapts_freezes_with_a_diagnostic_and_saves(estimator, tmp_path):
         h.spin_until(frozen_warned, 10.0, "the frozen-adaptation diagnostic")
 
         target = tmp_path / "adapted.yaml"
-        future = client.set_parameters([Parameter("adapt.save_params_file",
-                                                   value=str(target))])
-        h.spin_until(future.done, 20.0, "the save")
-        ok = future.result().results[0]
-        future = client.set_parameters([Parameter("adapt.save_params_file",
-                                                   value="/proc/no/such/dir/x.yaml")])
-        h.spin_until(future.done, 20.0, "the refused save")
-        refused = future.result().results[0]
+        ok = h.until_answered(lambda: client.set_parameters(
+            [Parameter("adapt.save_params_file", value=str(target))]), "the save").results[0]
+        refused = h.until_answered(lambda: client.set_parameters(
+            [Parameter("adapt.save_params_file", value="/proc/no/such/dir/x.yaml")]),
+            "the refused save").results[0]
         assert estimator.poll() is None, "estimator died"
 
     got = {round(stamp_to_sec(e.header.stamp), 6): e for e in estimates}

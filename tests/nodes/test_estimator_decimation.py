@@ -67,9 +67,9 @@ def test_publish_every_decimates_the_output_not_the_model(estimator):
             h.spin_for(0.003)
 
     def set_every(h, client, value):
-        future = client.set_parameters([Parameter("estimator.publish_every", value=value)])
-        h.spin_until(future.done, 20.0, f"set publish_every {value}")
-        return future.result().results[0]
+        return h.until_answered(lambda: client.set_parameters(
+            [Parameter("estimator.publish_every", value=value)]),
+            f"set publish_every {value}").results[0]
 
     with Harness() as h:
         diags = h.collect(DiagnosticArray, "/diagnostics", reliable_qos())

@@ -29,16 +29,12 @@ PROBE = "live_params_probe"
 def _set(h, client, **values):
     from rclpy.parameter import Parameter
 
-    future = client.set_parameters([Parameter(k.replace("__", "."), value=v)
-                                    for k, v in values.items()])
-    h.spin_until(future.done, 20.0, f"set {values}")
-    return future.result().results
+    params = [Parameter(k.replace("__", "."), value=v) for k, v in values.items()]
+    return h.until_answered(lambda: client.set_parameters(params), f"set {values}").results
 
 
 def _get(h, client, name):
-    future = client.get_parameters([name])
-    h.spin_until(future.done, 20.0, f"get {name}")
-    return future.result().values[0]
+    return h.until_answered(lambda: client.get_parameters([name]), f"get {name}").values[0]
 
 
 def _status(arrays, name):

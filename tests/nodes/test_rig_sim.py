@@ -42,9 +42,8 @@ def _speeds(rec, since: int = 0) -> list[float]:
 def _set(h, client, name, value):
     from rclpy.parameter import Parameter
 
-    future = client.set_parameters([Parameter(name, value=value)])
-    h.spin_until(future.done, 30.0, f"set {name}")
-    return future.result().results[0]
+    return h.until_answered(lambda: client.set_parameters([Parameter(name, value=value)]),
+                            f"set {name}").results[0]
 
 
 def test_slip_speed_parameter_changes_the_bus(tmp_path):
