@@ -228,7 +228,8 @@ def _print_summary(s: dict) -> None:
         "clutch demo summary",
         f"  within ±10 % of request (settled):  {100 * s['within_10pct']:.1f} % of time",
         f"  worst overshoot (measured/request): {s['worst_overshoot']:.3f}"
-        f" (longest > 1.1: {s['longest_overshoot_s']:.2f} s)",
+        f" at {s['worst_overshoot_time_s']:.2f} s (longest > 1.1: "
+        f"{s['longest_overshoot_s']:.2f} s)",
         f"  estimator RMSE vs measured torque:  {s['estimator_rmse_nm']:.1f} N m"
         f" ({100 * s['estimate_coverage']:.1f} % of rig samples estimated)",
         f"  reference (Eq. 1) RMSE:             {s['reference_rmse_nm']:.1f} N m",

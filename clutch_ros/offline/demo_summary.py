@@ -139,6 +139,9 @@ def closed_loop_summary(bag, profile, started_at: float, rated_torque: float | N
         "estimate_coverage": _coverage(s.rig_stamp, s.est_stamp),
         "settled_samples": int(use.sum()),
         "worst_overshoot": worst,
+        # [s] profile time of the worst overshoot (where to look in torque.png)
+        "worst_overshoot_time_s": (float(s.rig_time[np.nanargmax(ratio)]) if use.any()
+                                   else math.nan),
         "worst_undershoot": float(np.nanmin(ratio)) if use.any() else math.nan,
         "longest_overshoot_s": longest_run(over, s.rig_time),
         "estimator_rmse_nm": _rmse(s.modelled, s.est_measured),

@@ -1,11 +1,16 @@
 """The main job end to end: four node processes, CAN over udp_multicast, DDS, a bag.
 
-``clutch demo --quick --json`` runs rig_sim, can_bridge, estimator and controller as separate
-processes on the default (mismatched) truth plant and records everything. Asserted from the
-recorded bag (the summary is computed from it): estimates flow at the input rate, the
-controller's commands reach the simulated pump through the bridge (the rig's actuating
-pressure follows them), and the closed-loop torque is within ±10 % of the request for at
-least 90 % of the settled time with no overshoot above 1.1 lasting longer than 0.5 s.
+``clutch demo --json`` (the full profile, as ``./run demo`` runs it) runs rig_sim,
+can_bridge, estimator and controller as separate processes on the default (mismatched) truth
+plant and records everything. Asserted from the recorded bag (the summary is computed from
+it): estimates flow at the input rate, the controller's commands reach the simulated pump
+through the bridge (the rig's actuating pressure follows them), and the adaptive closed loop
+meets the main job's targets: every request plateau's torque within 2 % of the request
+(``steady_state_error`` <= 0.02), the torque within ±10 % of the request for >= 99 % of the
+settled time, and no settled overshoot above 1.05 (measured on an idle machine, eight runs:
+0.010-0.011 / 100 % / 1.031-1.033, one with a CPU hog beside it; README "Adaptive
+estimation"). These are closed-loop quality targets of a live system on real processes: a
+machine short of CPU degrades them (the summary then says so with ``rig_lost_time_s``).
 """
 
 import json
@@ -23,18 +28,21 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 @pytest.fixture(scope="module")
 def demo_run(tmp_path_factory, ros_env_module):
     out = tmp_path_factory.mktemp("demo") / "run"
-    done = subprocess.run([sys.executable, "-m", "clutch_ros.cli", "demo", "--quick", "--json",
+    done = subprocess.run([sys.executable, "-m", "clutch_ros.cli", "demo", "--json",
                            "-o", str(out)], cwd=REPO, env=ros_env_module, capture_output=True,
-                          text=True, timeout=400)
+                          text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-4000:]
     return out, json.loads(done.stdout)
 
 
-def test_closed_loop_accuracy(demo_run):
+def test_closed_loop_meets_the_main_jobs_targets(demo_run):
     _, summary = demo_run
-    assert summary["settled_samples"] > 1000
-    assert summary["within_10pct"] >= 0.90, summary
-    assert summary["longest_overshoot_s"] <= 0.5, summary
+    figures = {k: summary[k] for k in ("steady_state_error", "within_10pct", "worst_overshoot",
+                                       "worst_overshoot_time_s", "rig_lost_time_s")}
+    assert summary["settled_samples"] > 3000
+    assert summary["steady_state_error"] <= 0.02, figures
+    assert summary["within_10pct"] >= 0.99, figures
+    assert summary["worst_overshoot"] <= 1.05, figures
 
 
 def test_estimates_flow_at_input_rate(demo_run):
