@@ -5,6 +5,10 @@
 One module per subcommand; the work itself is done by the layers below (see ARCHITECTURE.md).
 """
 
-from clutch_ros.cli.main import main
+from clutch_ros import numeric_env
+
+numeric_env.configure()  # before numpy loads: one BLAS thread, no huge-page advice
+
+from clutch_ros.cli.main import main  # noqa: E402 - after the numpy setting above
 
 __all__ = ["main"]

@@ -6,17 +6,11 @@ each module has ``main(args=None)`` (the console script ``ros2 run clutch_ros <n
 and answers ``--help`` without starting ROS. The shared plumbing is split by what it
 is: ``parameters``, ``qos``, ``stamps``, ``diagnostics``, ``runner``.
 
-One BLAS thread per node process: importing this package sets ``OPENBLAS_NUM_THREADS`` and
-``OMP_NUM_THREADS`` to 1 unless they are set already (a value you set is kept), before any
-node imports numpy. The model's matrices are at most ~30 x 30, far below where a second BLAS
-thread pays off, while OpenBLAS's pool threads spin after each call and take CPU from the
-DDS threads. Measured with ``python -m benchmarks.estimator_node`` on this 2-core machine, the
-estimator's p99 latency at 1 kHz fell from 6-12 ms to 1.7-2.1 ms and at 2 kHz from 27-85 ms
-to about 4 ms (median unchanged at ~0.4 ms).
+One BLAS thread per node process (and no huge-page advice for numpy's arrays): importing
+this package calls :func:`clutch_ros.numeric_env.configure` before any node imports numpy
+(a value you set is kept); why, and what it measured, is in that module.
 """
 
-import os
+from clutch_ros import numeric_env
 
-for _name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
-    os.environ.setdefault(_name, "1")
-del _name
+numeric_env.configure()
