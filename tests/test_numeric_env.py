@@ -16,7 +16,8 @@ from tests.conftest import REPO
 
 PROBE = ("import os, {package}, numpy; "
          "hp = numpy._core.multiarray._set_madvise_hugepage(False); "
-         "print(os.environ.get('OPENBLAS_NUM_THREADS', '-'), len(os.listdir('/proc/self/task')), int(hp))")
+         "print(os.environ.get('OPENBLAS_NUM_THREADS', '-'), "
+         "len(os.listdir('/proc/self/task')), int(hp))")
 PACKAGES = ("clutch_ros.cli", "clutch_ros.nodes")
 
 
