@@ -28,7 +28,7 @@ import numpy as np
 from clutch_ros.bag.errors import BagError
 from clutch_ros.bag.rig_states import model_inputs, read_rig_states
 from clutch_ros.config.params_file import write_params
-from clutch_ros.model import EstimateBatch, SampleRejected, accuracy_summary, within_band
+from clutch_ros.model import EstimateBatch, SampleRejected, accuracy_summary
 from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimator
 from clutch_ros.offline.replay import ReplayResult, published_rows, write_estimates
 
@@ -149,14 +149,12 @@ def _replay_one(ae: AdaptiveEstimator, path: Path, rig, t, measured) -> Adaptive
     params = ae.base_params
     batch = _stack(estimates, accepted, t, params.pack.lamella_count, params.spline.law)
     ok = accepted
-    summary = accuracy_summary(batch.measured_torque[ok], batch.modelled_torque[ok],
-                               batch.reference_torque[ok])
+    summary = accuracy_summary(batch.measured_torque, batch.modelled_torque,
+                               batch.reference_torque, where=ok)
     status = ae.status
     summary.update(
         bag=str(path), law=params.spline.law, samples=n, accepted=int(ok.sum()),
         skipped=int((~ok).sum()),
-        reference_within_10pct=within_band(batch.measured_torque[ok],
-                                           batch.reference_torque[ok], 0.1, 0.05),
         friction_scale=status.friction_scale, friction_scale_std=status.friction_scale_std,
         spline_gain_scale=status.spline_gain_scale,
         spline_gain_scale_std=status.spline_gain_scale_std,

@@ -35,7 +35,7 @@ from clutch_ros.bag.rig_states import (
 )
 from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, Typestore
 from clutch_ros.bag.writer import BagWriter
-from clutch_ros.model import accuracy_summary, estimate_batch, within_band
+from clutch_ros.model import accuracy_summary, estimate_batch
 from clutch_ros.offline.streaming import StreamedEstimate, spare_core
 
 __all__ = [
@@ -136,14 +136,11 @@ def replay_bag(
     estimate_s = time.perf_counter() - start
     ok = batch.accepted
     summary = accuracy_summary(
-        batch.measured_torque[ok], batch.modelled_torque[ok], batch.reference_torque[ok]
+        batch.measured_torque, batch.modelled_torque, batch.reference_torque, where=ok
     )
     summary.update(
         bag=str(path),
         law=params.spline.law,
-        reference_within_10pct=within_band(
-            batch.measured_torque[ok], batch.reference_torque[ok], 0.1, 0.05
-        ),
         samples=len(rig),
         streamed=streamed is not None and streamed.valid,
         streamed_pieces=streamed.pieces if streamed is not None and streamed.valid else 0,

@@ -46,6 +46,35 @@ def test_within_band_counts_only_above_threshold():
     assert summary["samples"] == 6
 
 
+def test_summary_in_blocks_equals_the_whole_array_formulas():
+    """Several blocks, NaNs, tiny models, a mask: the same figures as rmse() / within_band()."""
+    from clutch_ros.model.metrics import SUMMARY_BLOCK
+
+    rng = np.random.default_rng(7)
+    n = 3 * SUMMARY_BLOCK + 123
+    measured = rng.normal(600.0, 300.0, n)
+    modelled = measured * rng.normal(1.0, 0.08, n)
+    reference = measured * rng.normal(1.02, 0.15, n)
+    measured[rng.random(n) < 0.01] = math.nan
+    modelled[rng.random(n) < 0.01] = 0.1  # below min_torque: no accuracy there
+    keep = rng.random(n) < 0.9
+    got = accuracy_summary(measured, modelled, reference, where=keep)
+    m, mod, ref = measured[keep], modelled[keep], reference[keep]
+    acc = m / np.where(np.abs(mod) >= 1.0, mod, np.nan)
+    counted = np.isfinite(m) & (np.abs(m) >= 0.05 * np.nanmax(np.abs(m))) & np.isfinite(acc)
+    assert got["samples"] == int(keep.sum())
+    # sums of squares added per block instead of pairwise over the whole array: rounding only
+    assert_allclose([got["rmse_nm"], got["reference_rmse_nm"]], [rmse(m, mod), rmse(m, ref)],
+                    rtol=1e-12)
+    assert got["within_10pct"] == within_band(m, mod)  # counts: exact
+    assert got["reference_within_10pct"] == within_band(m, ref)
+    assert 0.7 < got["within_10pct"] < 0.9 and got["reference_within_10pct"] < 0.6
+    assert got["max_accuracy"] == acc[counted].max() and got["min_accuracy"] == acc[counted].min()
+    none = accuracy_summary(np.full(10, math.nan), np.ones(10))
+    assert math.isnan(none["rmse_nm"]) and math.isnan(none["within_10pct"])
+    assert math.isnan(none["max_accuracy"]) and math.isnan(none["reference_rmse_nm"])
+
+
 def test_cross_correlation_formula_and_band():
     rng = np.random.default_rng(4)
     n = 4000
