@@ -4,7 +4,9 @@ For each spline law it prints the time per :meth:`PackModel.step` call [µs] and
 :func:`simulate` per sample [µs] with the numpy reference loop (``engine="numpy"``, the
 same-run baseline) and with the compiled kernel (``engine="kernel"``,
 :mod:`clutch_ros.model.kernel`), each also as a ratio to real time at the sample rate, and the
-kernel's speed-up over numpy. Input: Table 3 at 10 rpm (step, incremented step, 4/12/24 s
+kernel's speed-up over numpy, and the kernel called for one sample at a time (what a node
+would pay per message on the kernel path instead of ``step()``: the call's set-up, not the
+arithmetic, dominates there). Input: Table 3 at 10 rpm (step, incremented step, 4/12/24 s
 ramps, with lead-in/out), sampled at 1 ms, with the ``flexiforce_8`` parameters (N and law
 overridden). Each figure is the median of ``--repeat`` runs, the engines interleaved within a
 run (wall clock, one core). Excluded from timing: the first discretisation and the kernel's
@@ -23,7 +25,7 @@ import numpy as np
 from clutch_ros.model.pack import PackModel
 from clutch_ros.model.params import ClutchParams
 from clutch_ros.model.sequences import concatenate, table3
-from clutch_ros.model.simulate import simulate
+from clutch_ros.model.simulate import simulate, simulate_columns
 
 #: flexiforce_8 (params/flexiforce_8.yaml) as a dict, so the benchmark needs no YAML.
 BENCH_PARAMS = {
@@ -60,6 +62,18 @@ def bench_law(params, seq, repeat: int, step_samples: int) -> tuple[float, dict]
             t0 = time.perf_counter()
             simulate(params, t, p, w, temp, model=model, engine=engine)
             sim_us[engine].append((time.perf_counter() - t0) / t.size * 1e6)
+    single_us = []  # the kernel, one sample per call (pairs of samples, no reset)
+    out, calls = np.empty((10, 2)), min(n, 3000)
+    for _ in range(repeat):
+        model.reset(pl[0], tl[0], wl[0])
+        t0 = time.perf_counter()
+        for k in range(1, calls + 1):
+            ran = simulate_columns(params, t[k - 1:k + 1], p[k - 1:k + 1], w[k - 1:k + 1],
+                                   temp[k - 1:k + 1], out, model=model, reset=False,
+                                   engine="kernel")
+        # the output loop has no code for the printed laws (simulate() runs them): no figure
+        single_us.append((time.perf_counter() - t0) / calls * 1e6 if ran else float("nan"))
+    sim_us["kernel, one sample per call"] = single_us
     return (statistics.median(step_us),
             {engine: statistics.median(v) for engine, v in sim_us.items()})
 
@@ -81,14 +95,15 @@ def main(argv=None) -> int:
           f"input Table 3 at 10 rpm ({seq.t.size} samples, {seq.t[-1]:.1f} s), "
           f"median of {args.repeat}")
     print(f"{'law':12s} {'step() [us]':>11s} {'step xRT':>9s} | {'simulate numpy [us]':>19s} "
-          f"{'xRT':>6s} | {'simulate kernel [us]':>20s} {'xRT':>7s} | {'speed-up':>8s}")
+          f"{'xRT':>6s} | {'simulate kernel [us]':>20s} {'xRT':>7s} | {'speed-up':>8s} | "
+          f"{'kernel 1/call [us]':>18s}")
     for law in LAWS:
         params = base.with_law(law)
         step_us, sim_us = bench_law(params, seq, args.repeat, args.step_samples)
         num, ker = sim_us["numpy"], sim_us["kernel"]
         print(f"{law:12s} {step_us:11.2f} {1e6 / step_us / rate:9.0f} | {num:19.3f} "
               f"{1e6 / num / rate:6.0f} | {ker:20.3f} {1e6 / ker / rate:7.0f} | "
-              f"{num / ker:7.1f}x")
+              f"{num / ker:7.1f}x | {sim_us['kernel, one sample per call']:18.2f}")
     print("targets: step() <= 30 us, simulate() >= 500x real time at 1 kHz; "
           "arithmetic limit ~1 us per step (N = 8)")
     sys.stdout.flush()
