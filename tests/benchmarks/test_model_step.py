@@ -9,8 +9,11 @@ def test_bench_prints_every_law(capsys):
     for law in bench.LAWS:
         line = next(x for x in out.splitlines() if x.startswith(law + " "))
         # law | step() us, xRT | simulate numpy us, xRT | simulate kernel us, xRT | speed-up
+        # | the kernel one sample per call [us] (none for the printed laws: no output loop)
         cells = [c.split() for c in line.split("|")]
-        assert [len(c) for c in cells] == [3, 2, 2, 1], line
+        assert [len(c) for c in cells] == [3, 2, 2, 1, 1], line
+        single = float(cells[4][0])
+        assert single != single if law.endswith("_printed") else single > 0.0, line
         for value in (*cells[0][1:], *cells[1], *cells[2]):
             assert float(value) > 0.0, line
         assert cells[3][0].endswith("x") and float(cells[3][0][:-1]) > 0.0, line
