@@ -40,7 +40,6 @@ import time
 from pathlib import Path
 
 from benchmarks.bag_replay import generate_bag
-from clutch_ros import numeric_env
 from clutch_ros.bag.rig_states import REPLAY_FIELDS, read_rig_states
 
 __all__ = ["ProcessRun", "main", "run_process", "TARGETS"]
@@ -63,9 +62,9 @@ class ProcessRun:
 def run_process(args: list[str], timeout: float = 1800.0, env_extra: dict | None = None
                 ) -> ProcessRun:
     """Run ``python ARGS`` (this interpreter) and time it: wall and child CPU [s]."""
-    # every child with the numpy settings the clutch command makes for itself
-    # (clutch_ros.numeric_env), so the read-only baseline runs under the same ones
-    env = {**numeric_env.SETTINGS, **os.environ, "PYTHONUNBUFFERED": "1", **(env_extra or {})}
+    # the children inherit the numpy settings (benchmarks/__init__.py), the read-only
+    # baseline's process included
+    env = dict(os.environ, PYTHONUNBUFFERED="1", **(env_extra or {}))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, *args], capture_output=True, text=True,

@@ -88,6 +88,10 @@ def add_parser(sub) -> None:
     p.add_argument("--max-seconds", type=float, default=45.0, metavar="S",
                    help="stop the solver at its best point after about S seconds (default "
                         "45; 0: no limit); the result is then flagged as not converged")
+    p.add_argument("--threads", type=int, default=0, metavar="N",
+                   help="threads computing the finite-difference Jacobian's columns at once "
+                        "(default 0: one per core this process may use; 1: one after the "
+                        "other); the result is the same")
     add_batch_options(p, "bags' reads")
     p.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     p.set_defaults(func=run)
@@ -97,6 +101,8 @@ def run(args) -> int:
     """Fit, write the parameter file, print the figures."""
     if args.pdiff_weight is not None and not args.pdiff_weight >= 0.0:
         raise ClutchError(f"--pdiff-weight must be >= 0, got {args.pdiff_weight}")
+    if not args.threads >= 0:
+        raise ClutchError(f"--threads must be >= 0 (0: one per core), got {args.threads}")
     if args.fit_rate is not None and not args.fit_rate > 0.0:
         raise ClutchError(f"--fit-rate must be > 0 Hz, got {args.fit_rate}")
     if args.max_samples is not None and 0 < args.max_samples < 100 or \
@@ -122,6 +128,7 @@ def run(args) -> int:
     if not args.max_seconds >= 0.0:
         raise ClutchError(f"--max-seconds must be >= 0, got {args.max_seconds}")
     kwargs["max_seconds"] = args.max_seconds or None
+    kwargs["workers"] = args.threads
     options = FitOptions(**kwargs)
     validation = []
     if args.validate:

@@ -56,8 +56,11 @@ iterations of n + 1 evaluations; ``max_seconds`` (45 s) ends a fit early, not co
 from __future__ import annotations
 
 import math
+import os
+import threading
 import time
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -250,6 +253,7 @@ class _Problem:
         self.torque_per_pa = (2.0 * base.friction.mu_ref * pk.effective_radius
                               * pk.lamella_count * pk.piston_area)
         self.calls = 0
+        self._lock = threading.Lock()  # calls is counted from the Jacobian's threads too
         self.gains: dict[int, tuple[float, float]] = {}
         self.n_torque = int(sum(int((s.fit & np.isfinite(s.torque)).sum()) for s in segments))
         self.n_pdiff = int(sum(int((s.fit & np.isfinite(s.pdiff)).sum()) for s in segments
@@ -328,7 +332,8 @@ class _Problem:
         return torque_res, pdiff_res
 
     def __call__(self, z) -> np.ndarray:
-        self.calls += 1
+        with self._lock:
+            self.calls += 1
         torque_res, pdiff_res = self.residuals_parts(self.params(z))
         parts = torque_res + [r * (self.opts.pdiff_weight * self.torque_per_pa)
                               for r in pdiff_res]
@@ -383,14 +388,20 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
     # this module (replay reports use RunEvaluation)
     from scipy.optimize import least_squares
 
-    res = least_squares(problem, z0, bounds=(problem.lower, problem.upper), method="trf",
-                        x_scale=1.0, diff_step=opts.diff_step, ftol=opts.ftol, xtol=opts.xtol,
-                        gtol=opts.gtol, max_nfev=opts.max_nfev,
-                        callback=_Deadline(t0, opts.max_seconds))
-    z = res.x
-    jac = res.jac
-    if conditioning(jac) < 1e-2:  # near-singular: confirm with O(h²) central differences
-        jac = central_jacobian(problem, z, opts.diff_step)
+    workers = _workers(opts.workers, len(keys))
+    with ThreadPoolExecutor(workers, thread_name_prefix="clutch-fit") as pool:
+        # the Jacobian's columns run in `workers` threads (scipy's own forward differences,
+        # the same steps; only where each column is computed changes)
+        map_ = pool.map if workers > 1 else map
+        res = least_squares(problem, z0, bounds=(problem.lower, problem.upper), method="trf",
+                            x_scale=1.0, diff_step=opts.diff_step, ftol=opts.ftol,
+                            xtol=opts.xtol, gtol=opts.gtol, max_nfev=opts.max_nfev,
+                            callback=_Deadline(t0, opts.max_seconds),
+                            workers=map_ if workers > 1 else None)
+        z = res.x
+        jac = res.jac
+        if conditioning(jac) < 1e-2:  # near-singular: confirm with O(h²) central differences
+            jac = central_jacobian(problem, z, opts.diff_step, map_)
     rank_check(jac, keys, opts.rank_tol)
     params = problem.params(z)
     values = problem.values(z)
@@ -425,6 +436,16 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
         converged=bool(res.status > 0),
         message=(f"stopped at the {opts.max_seconds:g} s time limit (max_seconds) before "
                  "converging" if res.status == -2 else str(res.message)))
+
+
+def _workers(asked: int, columns: int) -> int:
+    """Threads for the Jacobian: ``asked`` (0: the cores this process may use), <= columns."""
+    if asked <= 0:
+        try:
+            asked = len(os.sched_getaffinity(0))
+        except AttributeError:  # pragma: no cover - not Linux
+            asked = os.cpu_count() or 1
+    return max(1, min(int(asked), columns))
 
 
 class _Deadline:

@@ -138,6 +138,8 @@ def test_fit_refuses_unidentifiable_data(bags, tmp_path, capsys):
                     "cannot fit friction.stribeck_speed")
     _one_error_line(*_run(fit_cmd, [bags["inc_step"], "--law", "none", "--base", "nope",
                                     "-o", out_file], capsys), "no such parameter file")
+    _one_error_line(*_run(fit_cmd, [bags["inc_step"], "--law", "none", "--threads", "-1",
+                                    "-o", out_file], capsys), "--threads must be >= 0")
     assert not out_file.exists()
 
 

@@ -106,6 +106,24 @@ def test_fit_recovers_the_truth_of_each_law(rig_truth, law):
     assert replay.reference_rmse > 10.0 * replay.rmse
 
 
+def test_the_jacobian_threads_change_nothing_but_where_columns_run(rig_truth):
+    """The Jacobian's columns in one thread or two: the same steps, so the same bits.
+
+    workers=1 computes the forward differences one after the other, workers=2 two at a time;
+    every iteration, evaluation count and fitted value must agree exactly.
+    """
+    from dataclasses import replace
+
+    truth = _truth(rig_truth, "ff_t")
+    run, _ = _rig_run(truth, 2, seed=12)
+    fits = [fit([run], "ff_t", truth, start=_start(truth, "ff_t"),
+                options=replace(NO_LIMIT, workers=w)) for w in (1, 2)]
+    assert fits[0].iterations == fits[1].iterations >= 2
+    assert fits[0].evaluations == fits[1].evaluations
+    assert fits[0].values == fits[1].values and fits[0].stderr == fits[1].stderr
+    np.testing.assert_array_equal(fits[0].correlation, fits[1].correlation)
+
+
 def test_fit_with_p_diff_and_disc_gains(rig_truth):
     # FlexiForce-like front/rear pressures with unknown disc gains (0.9, 1.1) and noise
     truth = _truth(rig_truth, "ff_t")
