@@ -1,0 +1,18 @@
+"""The --jobs benchmark runs end to end on small generated bags, every baseline included."""
+
+import json
+
+from benchmarks import batch_replay as bench
+
+
+def test_parallel_serial_and_one_core_replays_agree(capsys):
+    assert bench.main(["--count", "2", "--seconds", "2", "--repeat", "1", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["bags"] == 2 and doc["samples"] == 4000 and doc["jobs"] == 2
+    assert doc["identical"] is True  # serial, --no-stream and --jobs: the same figures
+    for key in ("serial_wall_s", "one_core_wall_s", "startup_wall_s", "parallel_wall_s"):
+        assert doc[key] > 0.0, key
+    assert doc["ratio"] == doc["parallel_wall_s"] / doc["serial_wall_s"]
+    # the bound: start-up once plus the one-core bag time shared out over the jobs
+    ideal = doc["startup_wall_s"] + (doc["one_core_wall_s"] - doc["startup_wall_s"]) / 2
+    assert doc["ideal_ratio"] == ideal / doc["serial_wall_s"]
