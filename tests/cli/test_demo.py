@@ -7,8 +7,8 @@ it): estimates flow at the input rate, the controller's commands reach the simul
 through the bridge (the rig's actuating pressure follows them), and the adaptive closed loop
 meets the main job's targets: every request plateau's torque within 2 % of the request
 (``steady_state_error`` <= 0.02), the torque within ±10 % of the request for >= 99 % of the
-settled time, and no settled overshoot above 1.05 (measured on an idle machine, eight runs:
-0.010-0.011 / 100 % / 1.031-1.033, one with a CPU hog beside it; README "Adaptive
+settled time, and no settled overshoot above 1.05 (measured, nine runs: 0.010-0.011 /
+100 % / 1.031-1.033, one beside one CPU hog and one beside two; README "Adaptive
 estimation"). These are closed-loop quality targets of a live system on real processes: a
 machine short of CPU degrades them (the summary then says so with ``rig_lost_time_s``).
 """
