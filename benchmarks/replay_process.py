@@ -83,36 +83,45 @@ def _read_only(bag: str) -> int:
     return 0
 
 
-def _median_run(args: list[str], repeat: int, env_extra: dict | None = None) -> ProcessRun:
-    """Run ``python ARGS`` ``repeat`` times; return the run of median wall time."""
-    runs = sorted((run_process(args, env_extra=env_extra) for _ in range(repeat)),
-                  key=lambda r: r.wall_s)
-    return runs[len(runs) // 2]
+def _median(runs: list[ProcessRun]) -> ProcessRun:
+    """Return the run of median wall time."""
+    return sorted(runs, key=lambda r: r.wall_s)[len(runs) // 2]
 
 
 def measure(bag: Path, laws: list[str], numpy_baseline: bool = False, repeat: int = 3
             ) -> dict:
     """Return the figures for ``bag``: baselines and replays per law (and engine).
 
-    Each row is the median (by wall time) of ``repeat`` runs, taken in turn per row. First,
+    Each row is the median (by wall time) of ``repeat`` runs; the rows take turns (every row
+    once, then every row again), so a drift of the machine's load touches them alike. First,
     untimed, one replay per law loads (or, the first time after an install, compiles) the
     kernel's machine code into its disk cache; its wall time is kept as ``first_run_s``.
     """
-    first = {law: run_process(["-m", "clutch_ros.cli", "replay", str(bag), "--params",
-                               "flexiforce_8", "--law", law, "--json"]).wall_s for law in laws}
-    startup = _median_run(["-m", "clutch_ros.cli", "replay", "--help"], repeat)
-    read = _median_run(["-m", "benchmarks.replay_process", "--read-only", str(bag)], repeat)
+    def replay(law: str, *extra: str) -> list[str]:
+        return ["-m", "clutch_ros.cli", "replay", str(bag), "--params", "flexiforce_8",
+                "--law", law, "--json", *extra]
+
+    first = {law: run_process(replay(law)).wall_s for law in laws}
+    rows: dict[str, tuple[list[str], dict | None]] = {
+        "startup": (["-m", "clutch_ros.cli", "replay", "--help"], None),
+        "read_only": (["-m", "benchmarks.replay_process", "--read-only", str(bag)], None)}
+    for law in laws:
+        rows[law] = (replay(law), None)
+        rows[f"{law} --no-stream"] = (replay(law, "--no-stream"), None)
+    if numpy_baseline:
+        rows.update({f"{law} (numpy loop)": (replay(law), {"CLUTCH_KERNEL": "0"})
+                     for law in laws})
+    runs: dict[str, list[ProcessRun]] = {key: [] for key in rows}
+    for _ in range(repeat):
+        for key, (args, env_extra) in rows.items():
+            runs[key].append(run_process(args, env_extra=env_extra))
+    startup, read = _median(runs.pop("startup")), _median(runs.pop("read_only"))
     samples = int(read.out.strip())
     doc = {"bag": str(bag), "samples": samples, "repeat": repeat, "first_run_s": first,
            "startup": {"wall_s": startup.wall_s, "cpu_s": startup.cpu_s},
            "read_only": {"wall_s": read.wall_s, "cpu_s": read.cpu_s}, "replay": {}}
-    runs = [(key, law, None, extra) for law in laws
-            for key, extra in ((law, []), (f"{law} --no-stream", ["--no-stream"]))]
-    if numpy_baseline:
-        runs += [(f"{law} (numpy loop)", law, {"CLUTCH_KERNEL": "0"}, []) for law in laws]
-    for key, law, env_extra, extra in runs:
-        run = _median_run(["-m", "clutch_ros.cli", "replay", str(bag), "--params",
-                           "flexiforce_8", "--law", law, "--json", *extra], repeat, env_extra)
+    for key, done in runs.items():
+        run = _median(done)
         summary = run.json()[0]
         if summary["samples"] != samples:
             raise RuntimeError(f"replay saw {summary['samples']} of {samples} samples")

@@ -305,8 +305,12 @@ class _Problem:
             out.append(tuple(model_block_means(y, s.w) for y in ys))
         return out
 
-    def residuals_parts(self, params):
-        """Torque residuals [N m] and P_diff residuals [Pa], one array per segment."""
+    def residuals_parts(self, params, record: dict | None = None):
+        """Torque residuals [N m] and P_diff residuals [Pa], one array per segment.
+
+        ``record``: a dict that receives the fitted front/rear disc gains per run (the final
+        evaluation's; the solver's evaluations, some of them in threads, record none).
+        """
         torque_res, pdiff_res = [], []
         rows: dict[int, list] = {}
         for i, (s, (tq, front, rear)) in enumerate(zip(self.segments, self.simulate(params))):
@@ -326,7 +330,8 @@ class _Problem:
             gains = np.ones(2)
             if meas.size >= 2 and np.linalg.matrix_rank(design) == 2:
                 gains = np.linalg.lstsq(design, meas, rcond=None)[0]
-            self.gains[run] = (float(gains[0]), float(gains[1]))
+            if record is not None:
+                record[run] = (float(gains[0]), float(gains[1]))
             for i, pd, front, rear in parts:
                 pdiff_res[i] = pd - (gains[0] * front - gains[1] * rear)
         return torque_res, pdiff_res
@@ -374,6 +379,7 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
     keys = [k for k in keys if k not in set(fixed)]
     if not keys:
         raise IdentificationError("every parameter is fixed: nothing to fit")
+    workers = _workers(opts.workers, len(keys))
     segments = prepare_segments(runs, params0, opts)
     check_data(segments, keys, opts, runs)
     fit_dt = float(np.median(np.concatenate([np.diff(s.t) for s in segments if len(s) > 1])))
@@ -388,8 +394,8 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
     # this module (replay reports use RunEvaluation)
     from scipy.optimize import least_squares
 
-    workers = _workers(opts.workers, len(keys))
-    with ThreadPoolExecutor(workers, thread_name_prefix="clutch-fit") as pool:
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="clutch-fit")
+    try:
         # the Jacobian's columns run in `workers` threads (scipy's own forward differences,
         # the same steps; only where each column is computed changes)
         map_ = pool.map if workers > 1 else map
@@ -402,10 +408,12 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
         jac = res.jac
         if conditioning(jac) < 1e-2:  # near-singular: confirm with O(h²) central differences
             jac = central_jacobian(problem, z, opts.diff_step, map_)
+    finally:  # an interrupt does not wait for the columns still queued
+        pool.shutdown(wait=True, cancel_futures=True)
     rank_check(jac, keys, opts.rank_tol)
     params = problem.params(z)
     values = problem.values(z)
-    torque_res, pdiff_res = problem.residuals_parts(params)
+    torque_res, pdiff_res = problem.residuals_parts(params, problem.gains)
     r = np.concatenate(torque_res + [x * (opts.pdiff_weight * problem.torque_per_pa)
                                      for x in pdiff_res])
     m, n = r.size, len(keys)
@@ -440,7 +448,10 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
 
 def _workers(asked: int, columns: int) -> int:
     """Threads for the Jacobian: ``asked`` (0: the cores this process may use), <= columns."""
-    if asked <= 0:
+    if not isinstance(asked, int) or asked < 0:
+        raise IdentificationError(f"FitOptions.workers must be an integer >= 0 (0: one per "
+                                  f"core), got {asked!r}")
+    if asked == 0:
         try:
             asked = len(os.sched_getaffinity(0))
         except AttributeError:  # pragma: no cover - not Linux

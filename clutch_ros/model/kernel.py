@@ -51,6 +51,7 @@ import hashlib
 import logging
 import math
 import os
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -83,6 +84,7 @@ LAW_CODES = {"none": (_NONE, 0), "ff_t_printed": (_LINEAR, 0), "ff_v_printed": (
 
 #: loop: the compiled loop once numba is imported; reason: why the kernel cannot be used
 _state: dict = {"loop": None, "reason": None, "numba_error": None}
+_LOCK = threading.RLock()
 
 
 class KernelUnavailableError(ModelError):
@@ -124,6 +126,13 @@ def _disable(reason: str, level: int = logging.WARNING) -> None:
 
 
 def _compiled():
+    if _state["loop"] is not None or _state["reason"] is not None:
+        return _state["loop"]
+    with _LOCK:  # threads (a fit's Jacobian, a replay's estimate) may ask at once: set up once
+        return _set_up()
+
+
+def _set_up():
     if _state["loop"] is not None or _state["reason"] is not None:
         return _state["loop"]
     if os.environ.get("CLUTCH_KERNEL", "1") == "0":

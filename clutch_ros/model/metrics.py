@@ -211,7 +211,7 @@ def accuracy_summary(measured, modelled, reference=None, threshold_fraction: flo
     whole-series temporaries. The sums of squares are added block by block, so the RMSE
     equals the whole-array mean to rounding (tests/model/test_metrics.py: rtol 1e-12).
     """
-    meas = np.asarray(measured, dtype=float)
+    meas = np.atleast_1d(np.asarray(measured, dtype=float))
     series = {"model": np.broadcast_to(np.asarray(modelled, dtype=float), meas.shape)}
     if reference is not None:
         series["ref"] = np.broadcast_to(np.asarray(reference, dtype=float), meas.shape)

@@ -9,10 +9,9 @@ function of its item, only where it runs changes.
 - ``jobs > 1``: a :class:`concurrent.futures.ProcessPoolExecutor`. On Linux its workers are
   forked from this process, so they start in milliseconds with every module this process has
   imported already (a spawned worker would pay the ~1 s import of numpy, scipy and rosbags
-  again); elsewhere they are spawned (with ``OPENBLAS_NUM_THREADS=1`` and friends set when
-  unset, so N workers use N cores). Forked workers share the parent's BLAS settings; the
-  model's per-sample products are far below OpenBLAS's threading size, so they run on one
-  thread either way.
+  again); elsewhere they are spawned (with :mod:`clutch_ros.numeric_env`'s settings, one
+  BLAS thread among them, set when unset, so N workers use N cores). Forked workers share
+  the parent's settings, which the ``clutch`` command made before numpy loaded.
 - ``cluster``: a running Dask distributed scheduler (``tcp://host:8786``); the jobs go to its
   workers with ``Client.map`` and come back with ``Client.gather`` (input order). The bags
   must be readable under the same paths on every worker (a shared file system). Dask rather
@@ -39,12 +38,11 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
+from clutch_ros import numeric_env
 from clutch_ros.errors import ClutchError
 
 __all__ = ["BatchJobError", "ClusterError", "run_jobs"]
 
-#: Environment variables that cap numpy's BLAS pool at one thread in pool workers.
-_ONE_THREAD = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 #: Seconds to wait for a Dask scheduler to answer before giving up.
 CONNECT_TIMEOUT_S = 10.0
@@ -123,9 +121,8 @@ def run_jobs(
         return _unwrap(_on_dask(_Guarded(func), items, cluster))
     if jobs == 1 or len(items) <= 1:
         return [func(item) for item in items]
-    saved = {k: os.environ.get(k) for k in _ONE_THREAD}
-    for key in _ONE_THREAD:  # read by each worker's BLAS if it is loaded there first
-        os.environ.setdefault(key, "1")
+    saved = {k: os.environ.get(k) for k in numeric_env.SETTINGS}
+    numeric_env.configure()  # read by each worker's numpy if it is loaded there first
     try:
         with ProcessPoolExecutor(max_workers=min(jobs, len(items)),
                                  mp_context=_context()) as pool:

@@ -77,34 +77,45 @@ class Harness:
         service's response writer may not have matched the client's response reader yet
         (DDS discovery is asymmetric; ros2/ros2#1253, ros2/rmw_connextdds#132): that first
         response is lost and a plain ``call_async`` waits for ever. So the request is sent
-        again every ``resend`` seconds [s] until one answer arrives within ``timeout`` [s]
-        (``resend`` inf: sent once, for a request that is not idempotent).
+        again every ``resend`` seconds [s] until one answer arrives, within ``timeout`` [s]
+        in all (``resend`` inf: sent once, for a request that is not idempotent).
         """
+        end = time.monotonic() + timeout
         assert client.wait_for_service(timeout_sec=timeout), client.srv_name
-
         return self.until_answered(lambda: client.call_async(request), client.srv_name,
-                                   timeout, resend, client.remove_pending_request)
+                                   max(end - time.monotonic(), 0.0), resend,
+                                   client.remove_pending_request)
 
     def until_answered(self, send, what: str, timeout: float = 30.0, resend: float = 2.0,
                        drop=None):
-        """Return the result of ``send()``'s future, calling ``send`` again every ``resend`` s.
+        """Return the first answer to ``send()``'s requests, sending again every ``resend`` s.
 
         For idempotent requests (see :meth:`call`), e.g. ``lambda:
-        parameter_client.set_parameters([...])``; ``drop(future)`` forgets an unanswered one.
+        parameter_client.set_parameters([...])``. Every request sent stays awaited: a slow
+        answer to an earlier one counts as well as the answer to the latest. ``drop(future)``
+        forgets the ones still unanswered at the end.
         """
         end = time.monotonic() + timeout
-        while True:
-            future = send()
-            again = min(end, time.monotonic() + resend)
-            while not future.done() and time.monotonic() < again:
-                self.executor.spin_once(timeout_sec=0.01)
-            if future.done():
-                return future.result()
-            if drop is not None:
-                drop(future)
-            if time.monotonic() >= end:
-                raise AssertionError(f"timed out after {timeout} s waiting for the answer "
-                                     f"of {what}")
+        pending = []
+        try:
+            while True:
+                pending.append(send())
+                again = min(end, time.monotonic() + resend)
+                while time.monotonic() < again:
+                    done = next((f for f in pending if f.done()), None)
+                    if done is not None:
+                        return done.result()
+                    self.executor.spin_once(timeout_sec=0.01)
+                if time.monotonic() >= end:
+                    done = next((f for f in pending if f.done()), None)
+                    if done is not None:
+                        return done.result()
+                    raise AssertionError(f"timed out after {timeout:.1f} s waiting for the "
+                                         f"answer of {what} ({len(pending)} requests sent)")
+        finally:
+            for future in pending:
+                if drop is not None and not future.done():
+                    drop(future)
 
 
 def assert_bad_settings_fail_at_start(node: str, cases: dict, env: dict) -> None:

@@ -62,6 +62,7 @@ def test_summary_figures_and_the_rig_time_lost_during_the_profile(tmp_path):
     # within_10pct: exact fractions of samples (the 1.2x stretch is the only miss)
     assert s["within_10pct"] == pytest.approx(1.0 - high.sum() / settled.sum(), abs=1e-12)
     assert s["worst_overshoot"] == pytest.approx(1.2, rel=1e-9)
+    assert s["worst_overshoot_time_s"] == pytest.approx(4.5, abs=1e-6)  # its first sample
     assert s["longest_overshoot_s"] == pytest.approx(0.29, abs=0.011)  # 30 samples, 10 ms
     assert s["rig_lost_time_s"] == pytest.approx(0.35, abs=1e-12)
 
