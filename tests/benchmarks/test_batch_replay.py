@@ -12,5 +12,3 @@ def test_parallel_serial_and_one_core_replays_agree(capsys):
     assert doc["identical"] is True  # serial, --no-stream and --jobs: the same figures
     for key in ("serial_wall_s", "one_core_wall_s", "startup_wall_s", "parallel_wall_s"):
         assert doc[key] > 0.0, key
-    # a replay of 0.1 s of data is all start-up: less than replaying 2 s of it, one core
-    assert doc["startup_wall_s"] < doc["one_core_wall_s"]

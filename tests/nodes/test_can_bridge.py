@@ -182,6 +182,12 @@ def test_rig_state_pump_requests_watchdog_and_limits(tmp_path):
                 h.spin_until(lambda: _diag(diags, "/can_bridge").get("watchdog_trips") == "2",
                              10.0, "the second watchdog trip")
                 h.spin_for(1.2)
+                # waits are for data: a report of the rig after all the commands (its timer
+                # runs beside a 1 kHz plant thread and may come late on a loaded machine)
+                reports = len(diags)
+                h.spin_until(lambda: any(s.name == "/rig_sim" for a in diags[reports:]
+                                         for s in a.status), 20.0,
+                             "a /diagnostics report of rig_sim after the commands")
                 bridge_view, rig_after = _diag(diags, "/can_bridge"), _diag(diags, "/rig_sim")
                 assert all(p.alive() for p in procs)
         finally:
