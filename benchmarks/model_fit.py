@@ -38,6 +38,7 @@ from clutch_ros.model.friction import reference_torque
 from clutch_ros.model.identification import FREE_PARAMETERS, FitOptions, FitRun, fit
 from clutch_ros.model.params import ClutchParams
 from clutch_ros.model.simulate import simulate
+from clutch_ros.numeric_env import usable_cores
 
 __all__ = ["RIG_TRUTH", "generate_run", "main"]
 
@@ -205,12 +206,14 @@ def main(argv=None) -> int:
     results = []
     for law in [s.strip() for s in args.laws.split(",") if s.strip()]:
         if args.max_samples is not None:
-            ref = fit([run], law, base)
+            ref = fit([run], law, base, options=FitOptions(workers=usable_cores()))
             _out(f"{law:8s} baseline, default budget: fit {ref.seconds:6.1f} s  "
                  f"({ref.evaluations} evaluations, {ref.samples:,} samples), RMSE "
                  f"{ref.rmse:.2f} N m")
-        options = FitOptions(max_samples=args.max_samples, max_seconds=None) \
-            if args.max_samples is not None else None
+        # the Jacobian's columns in one thread per usable core, as `clutch fit` runs them
+        options = FitOptions(max_samples=args.max_samples, max_seconds=None,
+                             workers=usable_cores()) \
+            if args.max_samples is not None else FitOptions(workers=usable_cores())
         result = fit([run], law, base, options=options)
         results.append(result)
         _out(f"{law:8s} fit {result.seconds:6.1f} s  ({result.iterations} iterations, "

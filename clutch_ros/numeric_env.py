@@ -3,6 +3,8 @@
 The ``clutch`` command (:mod:`clutch_ros.cli`) and every node process (:mod:`clutch_ros.nodes`)
 call :func:`configure` on import, before anything imports numpy, because the libraries read
 these environment variables once, when they load. A value the user has set is kept.
+:func:`usable_cores` is the one place that asks how many cores the work may use (a replay's
+second thread, a fit's Jacobian threads).
 
 - ``OPENBLAS_NUM_THREADS`` / ``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS`` = 1 (whichever BLAS
   numpy was built with): the model's matrices are at most ~30 x 30, far below where a second
@@ -23,7 +25,7 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["SETTINGS", "configure"]
+__all__ = ["SETTINGS", "configure", "usable_cores"]
 
 #: variable -> value set unless the environment has one already
 SETTINGS = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
@@ -34,3 +36,11 @@ def configure() -> None:
     """Set :data:`SETTINGS` in ``os.environ`` where unset (call before numpy is imported)."""
     for name, value in SETTINGS.items():
         os.environ.setdefault(name, value)
+
+
+def usable_cores() -> int:
+    """Return how many cores this process may run on (its CPU affinity; the count elsewhere)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1

@@ -41,6 +41,7 @@ from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
 from clutch_ros.model.calibration import METHODS
 from clutch_ros.model.identification import SAMPLE_BUDGET, FitOptions, fit
+from clutch_ros.numeric_env import usable_cores
 from clutch_ros.offline.fit_auto import (
     AutoFitResult,
     film_start,
@@ -128,7 +129,7 @@ def run(args) -> int:
     if not args.max_seconds >= 0.0:
         raise ClutchError(f"--max-seconds must be >= 0, got {args.max_seconds}")
     kwargs["max_seconds"] = args.max_seconds or None
-    kwargs["workers"] = args.threads
+    kwargs["workers"] = args.threads or usable_cores()
     options = FitOptions(**kwargs)
     validation = []
     if args.validate:

@@ -25,7 +25,6 @@ import time
 from pathlib import Path
 
 from clutch_ros.bag.recover import recover_bag
-from clutch_ros.bag.typestore import clutch_typestore
 from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
 from clutch_ros.cli.dispatch import add_batch_options, check_batch_options, emit_json
 from clutch_ros.cli.replay_adapt import AdaptiveRun, add_adapt_options, print_adaptation
@@ -130,9 +129,8 @@ def run(args) -> int:
     elif serial:
         done = (job(item) for item in items)
     else:
-        if not args.cluster:  # built once here, before the workers fork, not once in each:
-            warm_up(params)  # the compiled loop's machine code (~0.25 s)
-            clutch_typestore()  # the message types (~0.08 s: rosbags' stores are imported)
+        if not args.cluster:  # load the compiled loop once, before the workers fork
+            warm_up(params)
         done = iter(run_jobs(job, items, jobs=args.jobs, cluster=args.cluster))
     for (bag, recovery, spent), (summary, result) in zip(recoveries, done):
         if recovery is not None:

@@ -182,8 +182,9 @@ class FitOptions:
             friction law says, and a noisy slip sign there is noise, not information
         workers: threads that evaluate the finite-difference Jacobian's columns at once
             (each column is an independent simulation; the compiled kernel runs without the
-            GIL); 0: one per core this process may use, 1: one after the other. The columns,
-            so the fit, are the same bits either way
+            GIL); 1: one after the other. The columns, so the fit, are the same bits either
+            way. How many cores a process may use is the caller's to know (``clutch fit``
+            gives one per usable core)
 
     """
 
@@ -208,7 +209,7 @@ class FitOptions:
     max_nfev: int = 60
     max_seconds: float | None = 45.0
     min_slip_speed: float = 0.05
-    workers: int = 0
+    workers: int = 1
 
 
 

@@ -56,7 +56,6 @@ iterations of n + 1 evaluations; ``max_seconds`` (45 s) ends a fit early, not co
 from __future__ import annotations
 
 import math
-import os
 import threading
 import time
 from collections.abc import Mapping, Sequence
@@ -394,22 +393,22 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
     # this module (replay reports use RunEvaluation)
     from scipy.optimize import least_squares
 
-    pool = ThreadPoolExecutor(workers, thread_name_prefix="clutch-fit")
+    # the Jacobian's columns run in `workers` threads (scipy's own forward differences, the
+    # same steps; only where each column is computed changes)
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="clutch-fit") if workers > 1 else None
     try:
-        # the Jacobian's columns run in `workers` threads (scipy's own forward differences,
-        # the same steps; only where each column is computed changes)
-        map_ = pool.map if workers > 1 else map
         res = least_squares(problem, z0, bounds=(problem.lower, problem.upper), method="trf",
                             x_scale=1.0, diff_step=opts.diff_step, ftol=opts.ftol,
                             xtol=opts.xtol, gtol=opts.gtol, max_nfev=opts.max_nfev,
                             callback=_Deadline(t0, opts.max_seconds),
-                            workers=map_ if workers > 1 else None)
+                            workers=pool.map if pool else None)
         z = res.x
         jac = res.jac
         if conditioning(jac) < 1e-2:  # near-singular: confirm with O(h²) central differences
-            jac = central_jacobian(problem, z, opts.diff_step, map_)
+            jac = central_jacobian(problem, z, opts.diff_step, pool.map if pool else map)
     finally:  # an interrupt does not wait for the columns still queued
-        pool.shutdown(wait=True, cancel_futures=True)
+        if pool:
+            pool.shutdown(wait=True, cancel_futures=True)
     rank_check(jac, keys, opts.rank_tol)
     params = problem.params(z)
     values = problem.values(z)
@@ -447,16 +446,10 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
 
 
 def _workers(asked: int, columns: int) -> int:
-    """Threads for the Jacobian: ``asked`` (0: the cores this process may use), <= columns."""
-    if not isinstance(asked, int) or asked < 0:
-        raise IdentificationError(f"FitOptions.workers must be an integer >= 0 (0: one per "
-                                  f"core), got {asked!r}")
-    if asked == 0:
-        try:
-            asked = len(os.sched_getaffinity(0))
-        except AttributeError:  # pragma: no cover - not Linux
-            asked = os.cpu_count() or 1
-    return max(1, min(int(asked), columns))
+    """Threads for the Jacobian: ``asked``, at most one per column."""
+    if not isinstance(asked, int) or asked < 1:
+        raise IdentificationError(f"FitOptions.workers must be an integer >= 1, got {asked!r}")
+    return min(asked, columns)
 
 
 class _Deadline:

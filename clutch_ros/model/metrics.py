@@ -83,19 +83,8 @@ def within_band(measured, modelled, band: float = 0.1, threshold_fraction: float
     Only samples where |measured| ≥ ``threshold_fraction`` × max |measured| count (the
     accuracy is dominated by noise near zero torque). NaN if no sample counts.
     """
-    meas = np.asarray(measured, dtype=float)
-    acc = torque_accuracy(meas, modelled, min_torque)
-    finite = np.isfinite(meas)
-    if not finite.any():
-        return float("nan")
-    threshold = threshold_fraction * float(np.max(np.abs(meas[finite])))
-    with np.errstate(invalid="ignore"):
-        counted = finite & (np.abs(meas) >= threshold)
-    if not counted.any():
-        return float("nan")
-    with np.errstate(invalid="ignore"):
-        inside = (acc >= 1.0 - band) & (acc <= 1.0 + band)
-    return float(np.count_nonzero(inside & counted) / np.count_nonzero(counted))
+    return _band_summary(measured, {"model": modelled}, band, threshold_fraction,
+                         min_torque)["model"][1]
 
 
 @dataclass(frozen=True)
@@ -203,70 +192,77 @@ def accuracy_summary(measured, modelled, reference=None, threshold_fraction: flo
     max_accuracy, min_accuracy (the accuracy extremes over the samples counted by
     :func:`within_band`); torques [N m], the rest [1]. ``where``: boolean mask of the samples
     to summarise (default: all), the same as passing ``measured[where]``, ... without their
-    copies; ``samples`` counts them.
+    copies; ``samples`` counts them. The reference figures are NaN without ``reference``.
 
-    The same formulas as :func:`rmse` and :func:`within_band` (the reference figures NaN
-    without ``reference``), evaluated in blocks of :data:`SUMMARY_BLOCK` samples: a one-hour
-    replay (3.6 M samples) had spent 0.3-0.7 s here, most of it faulting in the pages of
-    whole-series temporaries. The sums of squares are added block by block, so the RMSE
-    equals the whole-array mean to rounding (tests/model/test_metrics.py: rtol 1e-12).
+    Evaluated in blocks of :data:`SUMMARY_BLOCK` samples (:func:`_band_summary`, which
+    :func:`within_band` uses too): a one-hour replay (3.6 M samples) had spent 0.3-0.7 s
+    here, most of it faulting in the pages of whole-series temporaries. The sums of squares
+    are added block by block, so the RMSE equals :func:`rmse` to rounding
+    (tests/model/test_metrics.py: rtol 1e-12).
+    """
+    series = {"model": modelled} if reference is None else {"model": modelled,
+                                                              "ref": reference}
+    out = _band_summary(measured, series, 0.1, threshold_fraction, min_torque, where)
+    nan = float("nan")
+    rms, within, low, high, samples = out["model"]
+    ref_rms, ref_within = out["ref"][:2] if "ref" in out else (nan, nan)
+    return {"samples": samples, "rmse_nm": rms, "reference_rmse_nm": ref_rms,
+            "within_10pct": within, "reference_within_10pct": ref_within,
+            "max_accuracy": high, "min_accuracy": low}
+
+
+def _band_summary(measured, series: dict, band: float, threshold_fraction: float,
+                  min_torque: float, where=None) -> dict:
+    """Per model in ``series``: (RMSE, fraction within ±band, min and max accuracy, samples).
+
+    The formulas of :func:`rmse`, :func:`within_band` and the accuracy extremes over the
+    samples it counts, in blocks of :data:`SUMMARY_BLOCK` samples (see accuracy_summary).
     """
     meas = np.atleast_1d(np.asarray(measured, dtype=float))
-    series = {"model": np.broadcast_to(np.asarray(modelled, dtype=float), meas.shape)}
-    if reference is not None:
-        series["ref"] = np.broadcast_to(np.asarray(reference, dtype=float), meas.shape)
+    models = {k: np.broadcast_to(np.asarray(v, dtype=float), meas.shape)
+              for k, v in series.items()}
     mask = None if where is None else np.broadcast_to(np.asarray(where, dtype=bool), meas.shape)
     blocks = [slice(a, a + SUMMARY_BLOCK) for a in range(0, meas.size, SUMMARY_BLOCK)]
+
+    def usable(values, b):
+        ok = np.isfinite(values)
+        return ok if mask is None else ok & mask[b]
+
     peak, any_finite = 0.0, False  # pass 1: the threshold, from the largest |measured|
     for b in blocks:
-        finite = np.isfinite(meas[b]) if mask is None else np.isfinite(meas[b]) & mask[b]
+        finite = usable(meas[b], b)
         if finite.any():
             any_finite = True
             peak = max(peak, float(np.max(np.abs(meas[b][finite]))))
     threshold = threshold_fraction * peak
-    sums = {k: [0.0, 0, 0] for k in series}  # sum of squares, finite pairs, inside the band
-    counted_n, low, high = 0, np.inf, -np.inf
+    # per model: sum of squares, finite pairs, inside the band, lowest and highest accuracy
+    sums = {k: [0.0, 0, 0, np.inf, -np.inf] for k in models}
+    counted_n = 0
     for b in blocks:  # pass 2: everything else
         m = meas[b]
-        finite = np.isfinite(m) if mask is None else np.isfinite(m) & mask[b]
         with np.errstate(invalid="ignore"):
-            counted = finite & (np.abs(m) >= threshold)
+            counted = usable(m, b) & (np.abs(m) >= threshold)
         counted_n += int(np.count_nonzero(counted))
-        for key, values in series.items():
-            v = values[b]
-            err = m - v
-            ok = np.isfinite(err) if mask is None else np.isfinite(err) & mask[b]
-            e = err[ok]
-            acc = torque_accuracy(m, v, min_torque)
+        for key, values in models.items():
+            err = m - values[b]
+            e = err[usable(err, b)]
+            acc = torque_accuracy(m, values[b], min_torque)
             with np.errstate(invalid="ignore"):
-                inside = counted & (acc >= 0.9) & (acc <= 1.1)
+                inside = counted & (acc >= 1.0 - band) & (acc <= 1.0 + band)
+            sel = acc[counted & np.isfinite(acc)]
             total = sums[key]
             total[0] += float(np.dot(e, e))
             total[1] += int(e.size)
             total[2] += int(np.count_nonzero(inside))
-            if key == "model":
-                sel = acc[counted & np.isfinite(acc)]
-                if sel.size:
-                    low, high = min(low, float(sel.min())), max(high, float(sel.max()))
+            if sel.size:
+                total[3], total[4] = min(total[3], float(sel.min())), max(total[4],
+                                                                          float(sel.max()))
     nan = float("nan")
-
-    def figures(key):
-        if key not in sums:
-            return nan, nan
-        sq, pairs, inside = sums[key]
-        rms = float(np.sqrt(sq / pairs)) if pairs else nan
-        return rms, (inside / counted_n if any_finite and counted_n else nan)
-
-    (rms, within), (ref_rms, ref_within) = figures("model"), figures("ref")
-    return {
-        "samples": int(meas.size if mask is None else np.count_nonzero(mask)),
-        "rmse_nm": rms,
-        "reference_rmse_nm": ref_rms,
-        "within_10pct": within,
-        "reference_within_10pct": ref_within,
-        "max_accuracy": high if np.isfinite(high) else nan,
-        "min_accuracy": low if np.isfinite(low) else nan,
-    }
+    samples = int(meas.size if mask is None else np.count_nonzero(mask))
+    return {k: (float(np.sqrt(sq / pairs)) if pairs else nan,
+                inside / counted_n if any_finite and counted_n else nan,
+                low if np.isfinite(low) else nan, high if np.isfinite(high) else nan, samples)
+            for k, (sq, pairs, inside, low, high) in sums.items()}
 
 
 def longest_run(flags, t) -> float:

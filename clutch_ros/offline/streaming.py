@@ -21,7 +21,6 @@ does not stream: a second thread per bag would only compete with the other bags.
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
@@ -29,6 +28,7 @@ import numpy as np
 
 from clutch_ros.bag.rig_states import model_inputs
 from clutch_ros.model import BatchEstimator
+from clutch_ros.numeric_env import usable_cores
 
 __all__ = ["PIECE_ROWS", "StreamedEstimate", "spare_core"]
 
@@ -39,10 +39,7 @@ PIECE_ROWS = 1 << 16
 
 def spare_core() -> bool:
     """Return True when this process may use more than one core (streaming can help)."""
-    try:
-        return len(os.sched_getaffinity(0)) > 1
-    except AttributeError:  # pragma: no cover - not Linux
-        return (os.cpu_count() or 1) > 1
+    return usable_cores() > 1
 
 
 class StreamedEstimate:
