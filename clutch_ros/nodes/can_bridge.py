@@ -309,7 +309,9 @@ class CanBridgeNode(LifecycleNode):
 
     def _replay(self) -> None:
         source, stop = self._source, self._stop
-        while self.count_subscribers("rig_state") < self._cfg["input.wait_for_subscribers"]:
+        # the writer's own matched readers, not the graph's count: a reader the graph knows
+        # may not be matched by the writer yet, and what is sent before is lost to it
+        while self._rig_pub.get_subscription_count() < self._cfg["input.wait_for_subscribers"]:
             if stop.wait(0.05):
                 return
         try:

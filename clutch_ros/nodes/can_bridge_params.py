@@ -69,8 +69,8 @@ PARAMS = [
         "read-only: chosen at configure"),
     _ro("input.realtime", True, "log replay at recorded timing (false: fast); read-only: "
         "chosen at configure"),
-    _ro("input.wait_for_subscribers", 0, "log replay starts once rig_state has this many "
-        "subscribers; read-only: chosen at configure", "", 0, 1000),
+    _ro("input.wait_for_subscribers", 0, "log replay starts once rig_state's writer has "
+        "matched this many subscriptions; read-only: chosen at configure", "", 0, 1000),
     *(_ro(f"map.{key}", _MAP_DEFAULTS[key], "signal map: 'MESSAGE.SIGNAL [* SCALE] [+ OFFSET]' "
           f"feeding {key} (SI = SCALE * DBC value + OFFSET; no SCALE: by the DBC unit); "
           "empty: not on the bus" + _DBC) for key in KEYS),

@@ -36,6 +36,7 @@ class Harness:
     def __init__(self, name: str = "test_harness"):
         self.name = name
         self.received: dict[str, list] = {}
+        self.subscriptions: dict[str, object] = {}
 
     def __enter__(self) -> Harness:
         self.context = rclpy.context.Context()
@@ -53,8 +54,21 @@ class Harness:
     def collect(self, msg_type, topic: str, qos) -> list:
         """Subscribe and return the list that fills with received messages."""
         bucket = self.received.setdefault(topic, [])
-        self.node.create_subscription(msg_type, topic, bucket.append, qos)
+        self.subscriptions[topic] = self.node.create_subscription(msg_type, topic,
+                                                                  bucket.append, qos)
         return bucket
+
+    def wait_matched(self, topics, timeout: float = 30.0) -> None:
+        """Spin until each collecting subscription on ``topics`` has matched a publisher.
+
+        This is the reader's own match count (``rmw_subscription_count_matched_publishers``).
+        A publisher that counts this reader among its matches may still send before the reader
+        has matched it in turn (DDS discovery is asymmetric): best-effort samples sent in that
+        window are lost. Start a publisher that waits for its readers only after this.
+        """
+        subs = [self.subscriptions[t] for t in topics]
+        self.spin_until(lambda: all(s.get_publisher_count() >= 1 for s in subs), timeout,
+                        f"publishers matched on {list(topics)}")
 
     def spin_for(self, seconds: float) -> None:
         """Spin for ``seconds`` of wall time."""

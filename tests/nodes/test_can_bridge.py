@@ -416,6 +416,9 @@ def test_log_input_vector_samples_and_rig_asc(tmp_path):
         with Harness("can_bridge_logs") as h:
             diags = h.collect(DiagnosticArray, "/diagnostics", 100)
             states = {ns: h.collect(RigState, f"{ns}/rig_state", deep) for ns in runs}
+            # our readers must have matched the bridges' writers before the replays start:
+            # a fast replay is over in milliseconds (CI once lost all of /fast this way)
+            h.wait_matched([f"{ns}/rig_state" for ns in runs])
             for ns in fast:  # a second subscriber each: the fast replays start now
                 h.node.create_subscription(RigState, f"{ns}/rig_state", lambda m: None, deep)
 
