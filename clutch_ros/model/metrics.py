@@ -228,11 +228,10 @@ def _band_summary(measured, series: dict, band: float, threshold_fraction: float
         ok = np.isfinite(values)
         return ok if mask is None else ok & mask[b]
 
-    peak, any_finite = 0.0, False  # pass 1: the threshold, from the largest |measured|
+    peak = 0.0  # pass 1: the threshold, from the largest |measured|
     for b in blocks:
         finite = usable(meas[b], b)
         if finite.any():
-            any_finite = True
             peak = max(peak, float(np.max(np.abs(meas[b][finite]))))
     threshold = threshold_fraction * peak
     # per model: sum of squares, finite pairs, inside the band, lowest and highest accuracy
@@ -260,7 +259,7 @@ def _band_summary(measured, series: dict, band: float, threshold_fraction: float
     nan = float("nan")
     samples = int(meas.size if mask is None else np.count_nonzero(mask))
     return {k: (float(np.sqrt(sq / pairs)) if pairs else nan,
-                inside / counted_n if any_finite and counted_n else nan,
+                inside / counted_n if counted_n else nan,
                 low if np.isfinite(low) else nan, high if np.isfinite(high) else nan, samples)
             for k, (sq, pairs, inside, low, high) in sums.items()}
 

@@ -74,17 +74,12 @@ def _bridge(args, logs):
                        isolated_ros_env(int(os.environ["ROS_DOMAIN_ID"])), logs)
 
 
-def _call(h, client, request, timeout=30.0, resend=2.0):
-    """Call a service (Harness.call: an idempotent request is resent until answered)."""
-    return h.call(client, request, timeout, resend)
-
-
 def _set(h, client, name, value):
     from rcl_interfaces.srv import SetParameters
     from rclpy.parameter import Parameter
 
     request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
-    return _call(h, client, request).results[0]
+    return h.call(client, request).results[0]
 
 
 def test_live_parameters_qos_and_foreign_signal_map(tmp_path):
@@ -141,7 +136,7 @@ def test_live_parameters_qos_and_foreign_signal_map(tmp_path):
                     "read-only": _set(h, setter, "can.channel", "239.1.2.3"),
                     "read-only map": _set(h, setter, "map.input_speed", "Shafts.OutShaft"),
                 }
-                read_back = _call(h, getter, GetParameters.Request(
+                read_back = h.call(getter, GetParameters.Request(
                     names=["pump.max_pressure", "pump.watchdog_timeout", "can.channel"]))
                 # the watchdog, live: 1 s instead of 0.2 s
                 assert _set(h, setter, "pump.watchdog_timeout", 1.0).successful
@@ -233,7 +228,7 @@ def test_lifecycle_configure_activate_deactivate(tmp_path):
                     return h.call(get, GetState.Request()).current_state.label
 
                 def transition(tid):
-                    return _call(h, change, ChangeState.Request(  # sent once: not idempotent
+                    return h.call(change, ChangeState.Request(  # sent once: not idempotent
                         transition=Transition(id=tid)), resend=math.inf).success
 
                 def command_for(seconds, pressure):

@@ -36,21 +36,16 @@ def estimator(ros_env):
         yield proc
 
 
-def _call(h, send, what: str):
-    """Return the answer of ``send()`` (a parameter-service future), resent until answered."""
-    return h.until_answered(send, what)
-
-
 def _set(h, client, name: str, value):
     from rclpy.parameter import Parameter
 
-    (result,) = _call(h, lambda: client.set_parameters([Parameter(name, value=value)]),
+    (result,) = h.until_answered(lambda: client.set_parameters([Parameter(name, value=value)]),
                       f"set {name}").results
     return result
 
 
 def _get(h, client, name: str):
-    (value,) = _call(h, lambda: client.get_parameters([name]), f"get {name}").values
+    (value,) = h.until_answered(lambda: client.get_parameters([name]), f"get {name}").values
     return value
 
 
@@ -162,11 +157,11 @@ def test_invalid_changes_are_rejected_with_the_models_reason(estimator):
             assert result.reason == _model_reason(flat, key, value), (key, value)
             assert key in result.reason
         # a wrong type is refused by ROS itself (the declared type), also with a reason
-        (typed,) = _call(h, lambda: client.set_parameters(
+        (typed,) = h.until_answered(lambda: client.set_parameters(
             [Parameter("friction.mu_ref", value="0.1")]), "set a string").results
         assert not typed.successful and typed.reason
         # the ranges are the model's, stated in the descriptors (rclpy does not pre-empt it)
-        mu, count = _call(h, lambda: client.describe_parameters(
+        mu, count = h.until_answered(lambda: client.describe_parameters(
             ["friction.mu_ref", "clutch.lamella_count"]), "describe").descriptors
         assert mu.additional_constraints == "finite, > 0.0, <= 1.0 (checked by the model)"
         assert count.additional_constraints == "finite, >= 1, <= 100 (checked by the model)"
