@@ -41,6 +41,7 @@ from clutch_ros.canbus.udp import (
     ECHOING_INTERFACES,
     EchoFilter,
     malformed_reason,
+    receive_drops,
     tune_udp_multicast,
 )
 
@@ -57,6 +58,11 @@ __all__ = [
 ]
 
 _LOG = logging.getLogger(__name__)
+
+
+def _add(a: int | None, b: int | None) -> int | None:
+    """Sum of two counts where None means unknown (unknown only when both are)."""
+    return b if a is None else a if b is None else a + b
 
 
 class LinkState(StrEnum):
@@ -96,6 +102,9 @@ class LinkStatus:
     own_echoes: int = 0
     malformed_frames: int = 0
     malformed_by_reason: dict[str, int] | None = None
+    #: frames the OS dropped before this process read them (a full receive buffer), over
+    #: every connection; None when the interface cannot tell (only udp_multicast on Linux can)
+    receive_drops: int | None = None
 
 
 class ReconnectingBus(can.BusABC):
@@ -186,6 +195,7 @@ class ReconnectingBus(can.BusABC):
         self.bus_off_frames = 0
         #: received datagrams/frames that were no valid CAN frame, dropped (by reason)
         self.malformed: Counter[str] = Counter()
+        self._drops_closed: int | None = None  # receive drops of the sockets closed so far
         self._malformed_limiter = RateLimiter(report_interval)
         #: the last 64 transitions
         self.events: deque[LinkEvent] = deque(maxlen=64)
@@ -259,6 +269,7 @@ class ReconnectingBus(can.BusABC):
             self._failures += 1
             self._next_attempt = now + self._delay()
             self._set_state(LinkState.DOWN, reason, now)
+            self._drops_closed = _add(self._drops_closed, receive_drops(bus))
         try:
             bus.shutdown()
         except Exception as err:  # the adapter may be gone already
@@ -419,7 +430,17 @@ class ReconnectingBus(can.BusABC):
                 own_echoes=self.own_echoes,
                 malformed_frames=self.malformed_frames,
                 malformed_by_reason=dict(self.malformed),
+                receive_drops=self.receive_drops(),
             )
+
+    def receive_drops(self) -> int | None:
+        """Frames the OS dropped before they were read, over every connection (None: unknown).
+
+        Only ``udp_multicast`` on Linux can tell (:func:`~clutch_ros.canbus.udp.receive_drops`);
+        a SocketCAN controller's own overflows arrive as error frames instead.
+        """
+        bus = self._bus
+        return _add(self._drops_closed, receive_drops(bus) if bus is not None else None)
 
     def shutdown(self) -> None:
         """Close the link for good (wakes a receiver waiting for the next attempt)."""

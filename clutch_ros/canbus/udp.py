@@ -8,7 +8,8 @@ from a CAN adapter in two ways that matter to a node:
   echoes, and :class:`~clutch_ros.canbus.bus.ReconnectingBus` removes them;
 * on Linux a socket bound to the port hears every group joined on that port, and its default
   receive buffer holds only ~20 ms of traffic at 10,000 frames/s: :func:`tune_udp_multicast`
-  (applied by :func:`~clutch_ros.canbus.bus.open_bus`) fixes both.
+  (applied by :func:`~clutch_ros.canbus.bus.open_bus`) fixes both; what a full buffer still
+  drops, the kernel counts, and :func:`receive_drops` reads.
 
 A datagram that is no CAN frame (not msgpack, an 11-bit identifier above 0x7FF, a DLC that
 differs from the data length, ...) makes python-can's ``recv`` raise ``CanOperationError``
@@ -20,6 +21,7 @@ instead of taking the link down.
 from __future__ import annotations
 
 import math
+import os
 import socket
 import sys
 import threading
@@ -35,6 +37,7 @@ __all__ = [
     "UDP_RECEIVE_BUFFER",
     "EchoFilter",
     "malformed_reason",
+    "receive_drops",
     "tune_udp_multicast",
 ]
 
@@ -74,6 +77,34 @@ def tune_udp_multicast(bus: can.BusABC, receive_buffer: int = UDP_RECEIVE_BUFFER
     except OSError:
         return False
     return True
+
+def receive_drops(bus: can.BusABC) -> int | None:
+    """Datagrams the kernel dropped at a ``udp_multicast`` bus's socket, or None if unknown.
+
+    A process that falls behind (a busy machine, a burst of 10,000 frames/s) lets the
+    socket's receive buffer fill; the kernel then drops datagrams, counted per socket in the
+    last column (``drops``) of ``/proc/net/udp`` and ``/proc/net/udp6``, found by the
+    socket's inode. Linux only; None for other interfaces and systems.
+    """
+    sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
+    if sock is None or not sys.platform.startswith("linux"):
+        return None
+    try:
+        inode = str(os.fstat(sock.fileno()).st_ino)
+    except (OSError, ValueError):  # closed meanwhile
+        return None
+    table = "/proc/self/net/udp6" if sock.family == socket.AF_INET6 else "/proc/self/net/udp"
+    try:
+        with open(table) as rows:
+            next(rows, None)  # the header
+            for row in rows:
+                cols = row.split()
+                if len(cols) >= 13 and cols[9] == inode:
+                    return int(cols[-1])
+    except (OSError, ValueError):
+        return None
+    return None
+
 
 #: The reasons :func:`malformed_reason` returns (a fixed set: bounded diagnostics).
 MALFORMED_REASONS = ("not_msgpack", "invalid_frame", "not_a_frame")

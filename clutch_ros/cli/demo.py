@@ -8,6 +8,12 @@ MCAP bag with rosbags, shuts everything down cleanly and prints a summary: fract
 settled time within ±10 % of the request, worst overshoot, estimator and reference-model RMSE
 against the rig's measured torque. PNG plots are written next to the bag.
 
+Every process of the run asks for real-time scheduling (SCHED_FIFO: the rig above the bridge
+above the estimator, controller and this process's request driver and recorder), so other work
+on the PC cannot starve the live chain; where the OS refuses (not root, no rtprio limit) the
+run goes on at the normal policy and the summary says so (``realtime``). ``--no-realtime``
+asks for nothing.
+
 The rig's truth plant (``rig_truth`` preset, ``coulomb`` spline law) differs on purpose from
 the estimator's preset, so the demo never compares a model with itself.
 
@@ -40,6 +46,7 @@ from clutch_ros.errors import ClutchError
 from clutch_ros.model import reference_torque
 from clutch_ros.model.control import ControllerSettings
 from clutch_ros.nodes.demo_driver import DemoDriver
+from clutch_ros.nodes.realtime import RealtimeSettings, apply_realtime, policy_of, time_sharing
 from clutch_ros.nodes.recorder import RecorderNode
 from clutch_ros.offline.demo_summary import closed_loop_summary
 from clutch_ros.offline.plots import plot_demo
@@ -54,6 +61,10 @@ __all__ = ["PUMP_RISE", "add_parser", "run"]
 #: Six full demos at 75 bar/s: worst overshoot 1.032-1.034 in five (one 1.060 at the first
 #: step, before any friction is learned); at 90 bar/s 1.033-1.061, two of seven above 1.05.
 PUMP_RISE = 75e5
+
+#: SCHED_FIFO priorities of the run's processes (1..99, higher preempts lower): the world
+#: first, then the bridge (CAN frames queue in its socket), then the model and the driver.
+RT_PRIORITY = {"rig_sim": 40, "can_bridge": 35, "estimator": 30, "controller": 30, "cli": 30}
 
 
 def add_parser(sub) -> None:
@@ -81,6 +92,10 @@ def add_parser(sub) -> None:
                         "ws://127.0.0.1:PORT (README.md)")
     p.add_argument("--dashboard-port", type=int, default=8765,
                    help="port of --dashboard (default 8765)")
+    p.add_argument("--no-realtime", action="store_true",
+                   help="run every process at the normal time-sharing policy (default: "
+                        "SCHED_FIFO where the OS allows it, so other work cannot starve the "
+                        "live chain)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.set_defaults(func=run)
 
@@ -127,6 +142,9 @@ def run(args) -> int:
              "controller.rise_rate_limit": PUMP_RISE,
              "controller.trim_rate": 0.0 if args.no_adapt else ControllerSettings.trim_rate})],
     }
+    if not args.no_realtime:
+        for name in specs:
+            specs[name] += ros_param_args({"rt.policy": "fifo", "rt.priority": RT_PRIORITY[name]})
     if args.dashboard:
         specs["dashboard"] = ros_param_args({"dashboard.port": args.dashboard_port})
         _say(f"clutch demo: dashboard at ws://127.0.0.1:{args.dashboard_port} (Foxglove: open "
@@ -141,11 +159,22 @@ def run(args) -> int:
             # 1 kHz) short, and it dropped 3-10 s of a 30 s run: a slowed world.
             procs.append(NodeProcess(name, ["--ros-args", *node_args], env, out / "logs",
                                      own_session=name == "rig_sim"))
+        if not args.no_realtime:  # this process's driver and recorder (DDS threads inherit)
+            report = apply_realtime(RealtimeSettings("fifo", RT_PRIORITY["cli"]))
+            if report.refused:
+                _say(f"clutch demo: warning: {report.message()}; the run goes on at the "
+                     "normal policy")
         written, driver = _drive(profile, procs, out, args)
+        policies = {"cli": policy_of(os.getpid()),
+                    **{proc.name: policy_of(proc.pid) for proc in procs}}
     finally:
+        time_sharing()  # the summary and plots need no priority
         for proc in reversed(procs):
             proc.stop()
     summary = _summarise(out, profile, driver, written, rated, args)
+    # True when every process of the chain ran at SCHED_FIFO (policy per process alongside)
+    summary["realtime"] = all(policies.get(name) == "fifo" for name in RT_PRIORITY)
+    summary["scheduling"] = policies
     if args.dashboard:
         summary["dashboard"] = f"ws://127.0.0.1:{args.dashboard_port}"
     if args.json:

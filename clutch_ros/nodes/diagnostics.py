@@ -22,8 +22,11 @@ class Diagnostics:
     """
 
     def __init__(self, node, collect: Callable[[], tuple[str, str, dict]], period_s: float = 1.0,
-                 hardware_id: str = ""):
+                 hardware_id: str = "", suffix: str = ""):
         """Publish ``collect()`` every ``period_s`` [s].
+
+        The status is named after the node (``/ns/node``); ``suffix`` (``/realtime``) names
+        a second status of the same node beside its main one.
 
         ``hardware_id`` names the hardware the status is about (the CAN interface and
         channel, or ``simulated rig``); empty: the node's ``diagnostics.hardware_id``
@@ -34,6 +37,7 @@ class Diagnostics:
             hardware_id = node.get_parameter(HARDWARE_ID_PARAM.name).value
         self.hardware_id = hardware_id or node.get_name()
         self._collect = collect
+        self._suffix = suffix
         self._pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._timer = node.create_timer(period_s, self.publish_now)
 
@@ -44,7 +48,8 @@ class Diagnostics:
         status.level = {"OK": DiagnosticStatus.OK, "WARN": DiagnosticStatus.WARN,
                         "ERROR": DiagnosticStatus.ERROR,
                         "STALE": DiagnosticStatus.STALE}[level]
-        status.name = f"{self._node.get_namespace().rstrip('/')}/{self._node.get_name()}"
+        status.name = (f"{self._node.get_namespace().rstrip('/')}/{self._node.get_name()}"
+                       f"{self._suffix}")
         status.message = message
         status.hardware_id = self.hardware_id
         status.values = [KeyValue(key=str(k), value=_fmt(v)) for k, v in values.items()]

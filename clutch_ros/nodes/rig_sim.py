@@ -64,6 +64,10 @@ PARAMS = [
 ]
 
 
+#: This node's parameters fixed at start (the rt.* ones are declared read-only by run_node).
+_READ_ONLY = frozenset(spec.name for spec in PARAMS if spec.read_only)
+
+
 class _OperatorScenario:
     """Closed loop with the slip speed set by the operator (the node parameter)."""
 
@@ -122,7 +126,7 @@ class RigSimNode(Node):
             if p.name == "rig.slip_speed" and not isinstance(self._scenario, _OperatorScenario):
                 return SetParametersResult(successful=False, reason="rig.slip_speed is only "
                                            "settable in operator mode")
-            if p.name not in ("rig.slip_speed", "use_sim_time"):
+            if p.name in _READ_ONLY:  # (ROS refuses read-only sets itself; so does this)
                 return SetParametersResult(successful=False,
                                            reason=f"{p.name} cannot change at run time")
         for p in params:

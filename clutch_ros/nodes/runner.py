@@ -16,7 +16,14 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
 from clutch_ros.errors import ClutchError
+from clutch_ros.nodes.diagnostics import Diagnostics
 from clutch_ros.nodes.parameters import ParamSpec, format_help, help_requested
+from clutch_ros.nodes.realtime import (
+    REALTIME_PARAMS,
+    RealtimeReport,
+    apply_realtime,
+    declare_realtime,
+)
 
 __all__ = ["DEFAULT_EXECUTOR", "EVENTS_WARNING", "make_executor", "run_node"]
 
@@ -73,7 +80,7 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     """
     argv = list(sys.argv[1:] if args is None else args)
     if help_requested(argv):
-        sys.stdout.write(format_help(name, doc, specs))
+        sys.stdout.write(format_help(name, doc, [*specs, *REALTIME_PARAMS]))
         return 0
     executor_kind, argv = _executor_option(argv)
 
@@ -83,8 +90,13 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     # only run when some callback wakes the executor.
     rclpy.init(args=[sys.argv[0], *argv])
     node = None
+    started = False
     try:
         node = factory()
+        settings = declare_realtime(node)  # every node's rt.* parameters (nodes/realtime.py)
+        realtime = _report_realtime(node, apply_realtime(settings)) if settings.requested \
+            else None
+        started = True
         # everything built so far lives as long as the node: out of the collector's sight, so
         # a full collection (every ~10^5 allocations at 1 kHz) does not walk the imported
         # modules and the message classes in the middle of a callback (latency tail)
@@ -95,6 +107,7 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
             node.get_logger().warning(EVENTS_WARNING)
         executor.add_node(node)
         executor.spin()
+        del realtime  # its /diagnostics timer lived as long as the spin
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
@@ -104,7 +117,7 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
         if rclpy.ok():
             raise
     except (ClutchError, ParameterException, ValueError) as err:
-        if node is not None:  # an error after start-up is a bug: show it
+        if started:  # an error after start-up is a bug: show it
             raise
         sys.stderr.write(f"{name}: error: {err}\n")
         return 2
@@ -116,3 +129,15 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _report_realtime(node, report: RealtimeReport) -> Diagnostics:
+    """Log what the real-time options did and publish it as ``<node>/realtime`` (every 5 s)."""
+    line = report.message()
+    if report.refused:
+        node.get_logger().warning(line)
+    else:
+        node.get_logger().info(line)
+    values = {"applied": ", ".join(report.applied), "refused": "; ".join(report.refused)}
+    return Diagnostics(node, lambda: (report.level, line, values), period_s=5.0,
+                       suffix="/realtime")

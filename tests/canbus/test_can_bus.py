@@ -442,3 +442,53 @@ def test_bus_config_from_node_params():
     assert config.can_filters == ({"can_id": 0x100, "can_mask": 0x7F0},)
     with pytest.raises(BusConfigError, match="CAN filter"):
         BusConfig.from_params({"can.interface": "virtual", "can.filters": ["0x100"]})
+
+
+def test_receive_drops_account_for_every_datagram_the_kernel_dropped():
+    """A reader that falls behind: frames read + frames the kernel dropped = frames sent.
+
+    The receive buffer is shrunk to 4 KiB so that a 500-frame burst overflows it for sure
+    (the real buffer is 4 MiB; a starved process overflows that at 10,000 frames/s too), and
+    the bus is reconnected once in between: the drops of the closed socket still count.
+    """
+    import socket
+
+    group, port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
+    rx = ReconnectingBus(config)
+    try:
+        assert rx.status().receive_drops == 0
+
+        def burst(count: int) -> int:
+            rx._bus._multicast._socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+            with open_bus(config) as tx:
+                for i in range(count):
+                    tx.send(can.Message(arbitration_id=0x123, data=i.to_bytes(8, "little"),
+                                        is_extended_id=False))
+            time.sleep(0.2)  # every datagram delivered or dropped by now (loopback)
+            read = 0
+            while rx.recv(0.1) is not None:
+                read += 1
+            return read
+
+        first = burst(500)
+        dropped_first = rx.status().receive_drops
+        assert first + dropped_first == 500 and dropped_first > 0, (first, dropped_first)
+        rx._fail(rx._bus, "test: reconnect")  # the next recv opens a new socket
+        deadline = time.monotonic() + 10.0  # it retries after its back-off (0.1 s)
+        while rx.status().state != LinkState.UP and time.monotonic() < deadline:
+            assert rx.recv(0.05) is None
+        assert rx.status().state == LinkState.UP and rx.connects == 2
+        second = burst(300)
+        assert first + second + rx.status().receive_drops == 800
+        assert rx.status().receive_drops > dropped_first
+    finally:
+        rx.shutdown()
+
+
+def test_receive_drops_unknown_for_an_interface_that_cannot_tell():
+    bus = ReconnectingBus(BusConfig(interface="virtual", channel=f"drops-{uuid.uuid4()}"))
+    try:
+        assert bus.status().receive_drops is None
+    finally:
+        bus.shutdown()

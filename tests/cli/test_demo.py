@@ -9,12 +9,15 @@ meets the main job's targets: every request plateau's torque within 2 % of the r
 (``steady_state_error`` <= 0.02), the torque within ±10 % of the request for >= 99 % of the
 settled time, and no settled overshoot above 1.05 (measured, ten runs: 0.010-0.011 /
 100 % / 1.031-1.033, three of them beside one, two and three CPU hogs; README "Adaptive
-estimation"). These are closed-loop quality targets of a live system on real processes; the
-simulated rig keeps its own CPU share and is the clock, so a busy machine slows the world
-(``rig_lost_time_s``) rather than the control.
+estimation"). These are closed-loop quality targets of a live system on real processes. They
+do not depend on the machine being idle: the demo runs the rig, the bridge, the model nodes
+and its own request driver and recorder at SCHED_FIFO (``nodes/realtime.py``), as a rig PC
+would, so other work cannot starve the chain; where the OS allows it (root here, as in CI) the
+test asserts that it did.
 """
 
 import json
+import os
 import subprocess
 import sys
 
@@ -44,6 +47,14 @@ def test_closed_loop_meets_the_main_jobs_targets(demo_run):
     assert summary["steady_state_error"] <= 0.02, figures
     assert summary["within_10pct"] >= 0.99, figures
     assert summary["worst_overshoot"] <= 1.05, figures
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="SCHED_FIFO needs root (or an rtprio limit)")
+def test_every_process_of_the_chain_ran_at_realtime_priority(demo_run):
+    _, summary = demo_run
+    assert summary["realtime"] is True, summary["scheduling"]
+    assert set(summary["scheduling"]) == {"cli", "rig_sim", "can_bridge", "estimator",
+                                          "controller"}
 
 
 def test_estimates_flow_at_input_rate(demo_run):

@@ -50,9 +50,11 @@ VECTOR = REPO / "tests" / "data" / "vector"
 WATCHDOG = 0.2  # [s] pump.watchdog_timeout
 PERIOD = 0.01  # [s] pump.period
 MAX_PRESSURE = 40e5  # [Pa] pump.max_pressure (default)
-#: [s] allowed on top of timeout + period for the executor to run the tick on a loaded
-#: 2-core machine (the bridge's own delay is ~1 ms on a quiet one)
+#: [s] allowed on top of timeout + period for the executor to run the tick (the bridge's own
+#: delay is ~1 ms on a quiet machine)
 WATCHDOG_TOLERANCE = 0.25
+#: real-time scheduling of the processes whose timing a test checks (nodes/realtime.py)
+REALTIME = {"rt.policy": "fifo", "rt.priority": 30}
 #: [s] the bridge's and this test's sockets each get a kernel receive stamp (SO_TIMESTAMPNS)
 #: for the same multicast datagram; they differ by microseconds (5.2 us seen in a loaded
 #: run), while a stamp taken at publish time instead would be >= ~0.1 ms late (the bridge's
@@ -93,8 +95,8 @@ def _close(actual: float, expected: float, signal: str) -> bool:
     return abs(actual - expected) <= DB.signal(signal).resolution * 0.51 + 1e-9
 
 
-def _check_state_against_bus(state, frames, times, by_name) -> None:
-    """Check a RigState against the newest frames up to its stamp (a frame's time).
+def _check_state_against_bus(state, frames, times, by_name) -> bool:
+    """Check a RigState against the newest frames up to its stamp; True if the mask was decided.
 
     Its ``stale_mask`` must be the bus's own at the stamp (``by_name``: :func:`frame_times`):
     0 on a healthy bus, and the groups the rig really left behind when the loaded machine
@@ -137,6 +139,7 @@ def _check_state_against_bus(state, frames, times, by_name) -> None:
         assert state.torque_request == 0.0
     expected = expected_stale_mask(stamp, by_name, GROUPS)
     assert expected is None or state.stale_mask == expected, (state.stale_mask, expected)
+    return expected is not None
 
 
 def test_rig_state_pump_requests_watchdog_and_limits(tmp_path):
@@ -148,10 +151,13 @@ def test_rig_state_pump_requests_watchdog_and_limits(tmp_path):
     group, port = private_group()
     logs = tmp_path / "logs"
     with BusRecorder(group, port) as rec:
-        procs = [_node("rig_sim", {**bus_params(group, port), "rig.slip_speed": 1.047}, logs),
+        # the watchdog's timing is under test: rig and bridge run as on a rig PC, at
+        # SCHED_FIFO (where the OS allows; else a WARN), so other work cannot delay them
+        procs = [_node("rig_sim", {**bus_params(group, port), "rig.slip_speed": 1.047,
+                                   **REALTIME}, logs),
                  _node("can_bridge", {**bus_params(group, port),
                                       "pump.watchdog_timeout": WATCHDOG,
-                                      "pump.period": PERIOD}, logs)]
+                                      "pump.period": PERIOD, **REALTIME}, logs)]
         try:
             with Harness("can_bridge_test") as h:
                 states = h.collect(RigState, "rig_state", sensor_qos())
@@ -168,10 +174,13 @@ def test_rig_state_pump_requests_watchdog_and_limits(tmp_path):
                 checked = [s for s in list(states)[-60:] if _stamp(s) <= times[-1]]
                 assert len(checked) > 20
                 by_name = frame_times(frames, DB)
+                decided = 0
                 for state in checked:
-                    _check_state_against_bus(state, frames, times, by_name)
-                # most samples of a healthy run carry no flag (the oracle is not all-stale)
-                assert sum(s.stale_mask == 0 for s in checked) > 0.8 * len(checked)
+                    decided += _check_state_against_bus(state, frames, times, by_name)
+                # the stale_mask check is not vacuous: the bus oracle decided most samples (it
+                # abstains only within 10 us of an age limit). Whether the masks are 0 is the
+                # rig's timing: a starved rig really pauses frames, and the bridge must flag it.
+                assert decided > 0.8 * len(checked), (decided, len(checked))
 
                 # 2. commands -> PumpRequests the rig follows (distinct values, 100 Pa apart)
                 commands = [10e5 + 100.0 * i for i in range(40)]
@@ -214,7 +223,13 @@ def test_rig_state_pump_requests_watchdog_and_limits(tmp_path):
     pressures = [p for _, p, _, _ in requests]
     assert {round(c) for c in commands[5:]} <= {round(p) for p in pressures}
     assert rig_after["invalid_pump_requests"] == "0" and int(rig_after["pump_requests"]) > 100
-    assert max(s.actuating_pressure for s in states) > 8e5  # the rig's pump followed
+    # the rig's pump followed. A sample may carry NaN pressure only while its group is
+    # flagged (before the first RigFast frame reached the bridge, or a starved rig paused
+    # it); Python's max() of a list starting with NaN is NaN, so reduce the finite ones.
+    pressure_bit = 1 << next(g.bit for g in GROUPS if "RigFast" in g.messages)
+    unknown = [s for s in states if not math.isfinite(s.actuating_pressure)]
+    assert all(s.stale_mask & pressure_bit for s in unknown), [s.stale_mask for s in unknown]
+    assert max(s.actuating_pressure for s in states if math.isfinite(s.actuating_pressure)) > 8e5
 
     # watchdog on the bus: the last command's frame -> the first 0 bar frame after it
     last = next(i for i, (_, p, _, _) in enumerate(requests) if abs(p - commands[-1]) < 1.0)
