@@ -79,6 +79,7 @@ PARAMS = [
 #: parameters applied live (the rest are declared read-only)
 LIVE = ("player.rate", "player.start_offset", "player.loop", "player.clock_period",
         "player.exit_when_done")
+_OWN = frozenset(spec.name for spec in PARAMS)
 
 
 def _msg_class(typename: str):
@@ -200,8 +201,8 @@ class BagPlayerNode(Node):
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         """Apply the live parameters (ranges checked by ROS); a new rate re-anchors timing."""
-        for p in params:
-            if p.name not in LIVE and p.name != "use_sim_time":
+        for p in params:  # its own fixed ones (ROS refuses other read-only ones, rt.*, itself)
+            if p.name in _OWN and p.name not in LIVE:
                 return SetParametersResult(successful=False, reason=f"{p.name} is read-only")
         with self._lock:
             for p in params:
