@@ -1,24 +1,24 @@
-"""Bags: rosbags typestore from msg_defs, writing, reading, CSV import (no rclpy).
+"""Bags: rosbags typestore from msg_defs, writing, reading, imports, recovery (no rclpy).
 
 Modules:
-    typestore   ``clutch_typestore()`` and message builders (``rig_state_msg`` ...)
-    writer      ``BagWriter`` (MCAP default, sqlite3), QoS metadata, ``write_rig_states``
-    reader      ``open_bag`` / ``BagReader``, ``check_bag``, fast ``read_rig_states``
-    rig_states  ``RigStateArrays`` and the two read paths behind ``read_rig_states``
-    columns     vectorized CDR -> numpy column decoding
-    fastmcap    direct scan of MCAP message records (used by ``read_rig_states``)
-    diagnose    which file is at fault; metadata.yaml vs storage comparison
-    csv_import  ``import_csv`` (rig CSV -> RigState bag)
-    arrays      ``TemplateSerializer`` / ``write_columns`` (fast fixed-layout writing),
-                ``read_columns`` (any supported type as numpy columns)
-    replay      ``replay_bag`` / ``write_estimates``: the estimator offline over a bag
-                (the back end of ``clutch replay``)
-    record      ``LossTracker``: exact loss counts from DDS sequence numbers (recorder)
-    simrun      simulated rig runs as RigState bags (``simulate_run``, ``write_run``)
-    golden      golden regression data (``tools/make_golden.py``, tests/bag/test_golden.py)
-    errors      ``BagError`` and its subclasses
-    bench       ``python -m benchmarks.bag_replay``: read and offline replay throughput on a
-                generated one-hour 1 kHz bag
+    typestore      ``clutch_typestore()`` and message builders (``rig_state_msg`` ...)
+    writer         ``BagWriter`` (MCAP default, sqlite3), QoS metadata, ``write_rig_states``
+    reader         ``open_bag`` / ``BagReader``, ``check_bag``, fast ``read_rig_states``
+    rig_states     ``RigStateArrays`` and the two read paths behind ``read_rig_states``
+    columns        vectorized CDR -> numpy column decoding
+    fastmcap       direct scan of MCAP message records (used by ``read_rig_states``)
+    arrays         ``TemplateSerializer`` / ``write_columns`` (fast fixed-layout writing),
+                   ``read_columns`` (any supported type as numpy columns)
+    diagnose       which file is at fault; metadata.yaml vs storage comparison
+    recover        ``recover_bag`` / ``recover_mcap``: the intact chunks of a damaged MCAP
+                   bag, and what was skipped (``clutch replay --recover``)
+    csv_import     ``import_csv`` (rig CSV -> RigState bag)
+    channel_map    channel maps: which MDF4 channel or CSV column feeds each RigState field
+    mapped_import  MDF4 (asammdf) and foreign CSV files through a channel map
+    errors         ``BagError`` and its subclasses (also ``FastMcapError``,
+                   ``CorruptMessageError``)
 
+The estimator over a bag (``clutch replay``), golden data and simulated runs live in
+:mod:`clutch_ros.offline`; the recorder's loss accounting in :mod:`clutch_ros.nodes`.
 Importing this package imports nothing heavy; import the modules you need.
 """

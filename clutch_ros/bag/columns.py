@@ -25,6 +25,8 @@ import numpy as np
 from rosbags.interfaces import Nodetype
 from rosbags.typesys.store import Typestore
 
+from clutch_ros.bag.errors import CorruptMessageError  # re-exported: its old home
+
 __all__ = ["ColumnDecoder", "CorruptMessageError", "columns_slow"]
 
 _PRIM = {
@@ -32,20 +34,6 @@ _PRIM = {
     "int16": "<i2", "uint16": "<u2", "int32": "<i4", "uint32": "<u4", "int64": "<i8",
     "uint64": "<u8", "float32": "<f4", "float64": "<f8",
 }  # fmt: skip
-
-
-class CorruptMessageError(ValueError):
-    """A message of the batch does not fit its type's layout.
-
-    Attributes:
-        index: position of the first bad message in the batch.
-
-    """
-
-    def __init__(self, index: int, cause: str):
-        self.index = index
-        self.cause = cause
-        super().__init__(f"message {index}: {cause}")
 
 
 def _steps(store: Typestore, typename: str, prefix: str = "") -> list[tuple]:

@@ -10,14 +10,21 @@ Hierarchy::
         ├── BagExistsError              output bag already exists (never overwritten)
         ├── BagNotFoundError            input bag, metadata.yaml or a storage file missing
         ├── BagCorruptError             truncated/garbage storage, bad metadata, bad data
-        │   └── BagMetadataMismatchError  metadata.yaml disagrees with the storage file
+        │   ├── BagMetadataMismatchError  metadata.yaml disagrees with the storage file
+        │   ├── FastMcapError           the MCAP layout is broken (fastmcap's direct scan)
+        │   ├── CorruptMessageError     a CDR message does not fit its type (columns), has ``index``
+        │   └── _DamagedError           private to recover.py: a record or chunk does not validate
         ├── BagCountMismatchError       messages yielded/written != count declared
         ├── UnknownTypeError            type not in the typestore (or defined differently)
         ├── MessageFieldError           building a message: unknown field or bad value
         └── CsvError                    rig CSV problem, with ``line`` and ``column``
 
 ``BagCorruptError``, ``BagCountMismatchError`` and ``CsvError`` are also ``DataError``;
-``MessageFieldError`` is also a ``ValueError``.
+``MessageFieldError``, ``FastMcapError``, ``CorruptMessageError`` and ``_DamagedError`` are
+also ``ValueError`` (their callers' ``except ValueError`` keep working). ``FastMcapError``,
+``CorruptMessageError`` and ``_DamagedError`` carry no path (``path`` is ``None``): the callers
+that know the file wrap them in a :class:`BagCorruptError` naming it. They are importable
+from their old modules too (``bag.fastmcap``, ``bag.columns``, ``bag.recover``).
 """
 
 from __future__ import annotations
@@ -33,7 +40,9 @@ __all__ = [
     "BagExistsError",
     "BagMetadataMismatchError",
     "BagNotFoundError",
+    "CorruptMessageError",
     "CsvError",
+    "FastMcapError",
     "MessageFieldError",
     "UnknownTypeError",
 ]
@@ -127,3 +136,32 @@ class CsvError(BagError, DataError):
         self.column = column
         where = f"line {line}: " if line is not None else ""
         super().__init__(path, f"{where}{cause}")
+
+
+class FastMcapError(BagCorruptError, ValueError):
+    """The file does not follow the MCAP layout (or uses an unsupported compression)."""
+
+    def __init__(self, cause: str, path: str | Path | None = None):
+        super().__init__(path, cause)
+
+
+class CorruptMessageError(BagCorruptError, ValueError):
+    """A message of the batch does not fit its type's layout.
+
+    Attributes:
+        index: position of the first bad message in the batch.
+        cause: the reason, without the position.
+
+    """
+
+    def __init__(self, index: int, cause: str):
+        super().__init__(None, f"message {index}: {cause}")
+        self.index = index
+        self.cause = cause
+
+
+class _DamagedError(BagCorruptError, ValueError):
+    """A record or chunk does not validate (``bag/recover.py`` catches it and skips the region)."""
+
+    def __init__(self, cause: str):
+        super().__init__(None, cause)

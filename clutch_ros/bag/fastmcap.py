@@ -24,6 +24,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from clutch_ros.bag.errors import FastMcapError  # re-exported: its old home
+
 if sys.version_info >= (3, 14):  # pragma: no cover
     from compression import zstd
 else:
@@ -36,10 +38,6 @@ _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_FOOTER, _OP_DATA_END = 0x04, 0x05, 0x06
 _REC = struct.Struct("<BQ")  # opcode, record length
 _LEN = struct.Struct("<Q")  # record length
 _CHUNK = struct.Struct("<QQQI")  # start time, end time, uncompressed size, uncompressed crc
-
-
-class FastMcapError(ValueError):
-    """The file does not follow the MCAP layout (or uses an unsupported compression)."""
 
 
 class MessageBlock(NamedTuple):

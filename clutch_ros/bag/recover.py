@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from clutch_ros.bag.diagnose import load_metadata, storage_files
-from clutch_ros.bag.errors import BagError
+from clutch_ros.bag.errors import BagError, _DamagedError
 from clutch_ros.bag.typestore import Typestore, clutch_typestore
 from clutch_ros.bag.writer import BagWriter
 
@@ -42,10 +42,6 @@ _KNOWN = set(range(0x01, 0x10))
 _REC = struct.Struct("<BQ")
 _CHUNK_HEAD = struct.Struct("<QQQI")
 _MSG_HEAD = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
-
-
-class _DamagedError(ValueError):
-    """A record or chunk does not validate."""
 
 
 @dataclass

@@ -4,23 +4,26 @@ Modules:
 
 * :mod:`~clutch_ros.canbus.dbc` -- :class:`RigDatabase` (strict DBC, SI decode/encode),
   :class:`PumpRequestCodec` (counter + CRC-8 SAE J1850).
+* :mod:`~clutch_ros.canbus.units` -- DBC bus units and their conversion to SI.
+* :mod:`~clutch_ros.canbus.signal_map` -- which DBC message and signal feeds each RigState
+  field and the pump command (``map.<field>`` parameters).
 * :mod:`~clutch_ros.canbus.config` -- :class:`BusConfig` (also from node parameters),
-  :func:`open_bus`.
+  :func:`open_bus`, CAN filters.
 * :mod:`~clutch_ros.canbus.bus` -- :class:`ReconnectingBus` (bus-off / unplugged adapter
   recovery with back-off, removal of the udp_multicast echo of our own frames).
 * :mod:`~clutch_ros.canbus.udp` -- udp_multicast specifics: echo filter, group isolation and
   receive buffer of the socket.
 * :mod:`~clutch_ros.canbus.assembler` -- :class:`RigStateAssembler` (a ``can.Listener``)
-  and :class:`RigSample` (one RigState in SI units, with stale mask).
+  filling :class:`RigSample` (one RigState in SI units, with stale mask; defined in
+  :mod:`clutch_ros.rigstate`).
 * :mod:`~clutch_ros.canbus.pump_gate` -- :class:`PumpCommandGate` (PressureCommand -> PumpRequest,
   clamp, rate limit, watchdog).
 * :mod:`~clutch_ros.canbus.logsource` -- :class:`LogSource` (ASC/BLF/any python-can log).
 * :mod:`~clutch_ros.canbus.counters` -- frame counters, rates, rate limiter, RigState pacer.
 * :mod:`~clutch_ros.canbus.errors` -- :class:`CanError` and its subclasses.
-* :mod:`~benchmarks.can_decode` -- ``python -m benchmarks.can_decode`` (receive path).
-* :mod:`~benchmarks.can_bridge_node` -- ``python -m benchmarks.can_bridge_node``: the
-  can_bridge node process against a bare python-can loop (the one module here that starts
-  ROS, and only when run).
+
+Benchmarks of this layer live outside the package: ``python -m benchmarks.can_decode``
+(receive path) and ``python -m benchmarks.can_bridge_node`` (the can_bridge node process).
 """
 
 from clutch_ros.canbus.assembler import RigStateAssembler

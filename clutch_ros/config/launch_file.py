@@ -28,8 +28,8 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from clutch_ros.config.errors import LaunchFileError  # re-exported: its old home
 from clutch_ros.config.presets import params_dir
-from clutch_ros.errors import ConfigError
 
 __all__ = ["LaunchArg", "LaunchDescription", "LaunchFileError", "NodeEntry", "load_launch",
            "package_share", "parse_overrides"]
@@ -38,10 +38,6 @@ PACKAGE = "clutch_ros"
 _SUBST = re.compile(r"\$\(([a-z-]+)((?:\s+[^()\s]+)*)\s*\)")
 _NODE_ATTRS = {"pkg", "exec", "name", "namespace", "if", "unless", "output"}
 _TRUE, _FALSE = ("true", "1", "yes", "on"), ("false", "0", "no", "off")
-
-
-class LaunchFileError(ConfigError):
-    """A launch file cannot be read or uses something outside the supported subset."""
 
 
 @dataclass(frozen=True)

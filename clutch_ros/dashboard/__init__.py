@@ -10,6 +10,7 @@ ROS delivers; ``clutch dashboard --bag`` plays a bag (:class:`BagStream`, :class
 - :mod:`~clutch_ros.dashboard.bag_stream`: a bag as a message stream, estimates computed
   with the offline replay when the bag has none.
 - :mod:`~clutch_ros.dashboard.player`: real-time (× rate) playback with ``/diagnostics``.
+- :mod:`~clutch_ros.dashboard.errors`: :class:`DashboardError`.
 """
 
 from clutch_ros.dashboard.bag_stream import BagStream, estimate_frames

@@ -13,6 +13,13 @@ documents its quantities. Main entry points:
 - :func:`pressure_for_torque` / :func:`solve_pressure`: the inverse.
 - :class:`ClutchEstimator` / :func:`estimate_batch`: the per-sample estimator.
 - :mod:`~clutch_ros.model.metrics` and :mod:`~clutch_ros.model.sequences` (Tables 3-4).
+- :class:`TorqueController` (``control``): the control law; :func:`fit` (``identification``,
+  with ``fit_data``) and :func:`calibrate` (``calibration``): grey-box fit, FlexiForce.
+- :class:`ModelError` and its subclasses (``errors``).
+
+Not exported here (import the module): ``adaptation`` (online friction-scale adaptation),
+``film`` (oil film and thermal state), ``kernel`` / ``kernel_box`` (the compiled per-sample
+loop, numba).
 
 Every name is imported lazily from its module on first use (``_EXPORTS``).
 """

@@ -40,20 +40,13 @@ from typing import Any
 
 from clutch_ros import numeric_env
 from clutch_ros.errors import ClutchError
+from clutch_ros.offline.errors import BatchJobError, ClusterError  # re-exported: old home
 
 __all__ = ["BatchJobError", "ClusterError", "run_jobs"]
 
 
 #: Seconds to wait for a Dask scheduler to answer before giving up.
 CONNECT_TIMEOUT_S = 10.0
-
-
-class BatchJobError(ClutchError):
-    """A job failed in a worker process or on a cluster worker (its one-line message)."""
-
-
-class ClusterError(ClutchError):
-    """The Dask scheduler could not be reached or used."""
 
 
 @dataclass(frozen=True)

@@ -1,16 +1,18 @@
 """The simulated one-motor clutch rig (no ROS): truth plant, pump, thermal model, sensors, CAN.
 
 Modules:
-    pump        :class:`PumpModel` — lag, rate limit, max pressure, the pressure "kick"
-    thermal     :class:`ThermalModel` — lamella heating from slip power, cooling to the oil
-    flexiforce  :class:`FlexiForceArray` — 4 front + 4 rear FlexiForce voltages
-    plant       :class:`RigPlant` — the truth plant producing :class:`RigSignals`
-    scenario    Tables 3–4 scripted runs, closed-loop runs
-    simulator   :class:`RigSimulator` — plant + scenario (+ an optional CAN port) at 1 kHz;
-                :func:`run_offline` — a run without a bus, as arrays
-    can_io      :class:`RigCanPort` — DBC frames out at their cycle times, pump requests in
-                (import it from ``clutch_ros.rig.can_io``: it needs python-can, the rest of
-                the simulated rig does not)
+    pump             :class:`PumpModel` — lag, rate limit, max pressure, the pressure "kick"
+    thermal          :class:`ThermalModel` — lamella heating from slip power, cooling to the oil
+    flexiforce       :class:`FlexiForceArray` — 4 front + 4 rear FlexiForce voltages
+    plant            :class:`RigPlant` — the truth plant producing :class:`RigSignals`
+    scenario         Tables 3–4 scripted runs, closed-loop runs
+    request_profile  the demo's torque-request profile (steps and ramps at 10 and 30 rpm)
+    simulator        :class:`RigSimulator` — plant + scenario (+ an optional CAN port) at 1 kHz;
+                     :func:`run_offline` — a run without a bus, as arrays
+    can_io           :class:`RigCanPort` — DBC frames out at their cycle times, pump requests in
+                     (import it from ``clutch_ros.rig.can_io``: it needs python-can, the rest of
+                     the simulated rig does not)
+    errors           :class:`RigError`, :class:`RigConfigError`, argument checks
 
 The ``rig_sim`` ROS node is a thin adapter around :class:`RigSimulator`. Units are SI
 (temperatures in °C) everywhere.
