@@ -11,6 +11,9 @@ Read-only (descriptor ``read_only``; the description says why): the CAN bus (``c
 the DBC and signal map (``bridge.dbc_file``, ``map.*``) are opened and checked at configure,
 ``bridge.publish_raw`` decides at configure whether ``can_frames`` is advertised, the log
 input (``input.*``) is chosen at configure, ``autostart`` acts at start only.
+
+Defaults: the pump limits' defaults are :class:`~clutch_ros.canbus.PumpGateConfig`'s (why
+those values: its docstring), read from there, never written here again.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from clutch_ros.canbus import PumpGateConfig
+from clutch_ros.canbus.pump_gate import PUMP_PERIOD
 from clutch_ros.canbus.signal_map import KEYS, SignalMap
 from clutch_ros.errors import ClutchError
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec
@@ -33,6 +37,7 @@ def _ro(name, default, description, unit="", minimum=None, maximum=None) -> Para
 
 
 _MAP_DEFAULTS = SignalMap.default_specs()
+_GATE = PumpGateConfig()  # the defaults of the pump limits
 PARAMS = [
     _ro("autostart", True, "configure and activate at start (false: wait for the lifecycle "
         "services); read-only: acts at start only"),
@@ -53,16 +58,19 @@ PARAMS = [
               "bridge.rate timer"),
     _ro("bridge.publish_raw", False, "publish every frame on can_frames; read-only: decides "
         "at configure whether can_frames is advertised"),
-    ParamSpec("pump.max_pressure", 40e5, "largest pressure ever requested", "Pa", 1e4, 60e5),
-    ParamSpec("pump.rate_limit", 400e5, "maximum rise of the requested pressure; a frame "
-              "that leaves late rises by at most one pump.period's worth", "Pa/s", 1e3, 1e10),
-    ParamSpec("pump.watchdog_timeout", 0.2, "no pressure_command for this long -> 0 bar; "
-              "more than pump.period", "s", 0.005, 60.0),
-    ParamSpec("pump.period", 0.01, "PumpRequest repetition period (the DBC cycle); less than "
-              "pump.watchdog_timeout", "s", 0.001, 1.0),
-    ParamSpec("pump.future_tolerance", 0.05, "pressure_command stamped further ahead of "
-              "this node's clock than this is refused", "s", 0.0, 10.0),
-    ParamSpec("pump.accept_unstamped", False, "admit pressure_command without a stamp"),
+    ParamSpec("pump.max_pressure", _GATE.max_pressure, "largest pressure ever requested",
+              "Pa", 1e4, 60e5),
+    ParamSpec("pump.rate_limit", _GATE.rate_limit_up, "maximum rise of the requested "
+              "pressure; a frame that leaves late rises by at most one pump.period's worth",
+              "Pa/s", 1e3, 1e10),
+    ParamSpec("pump.watchdog_timeout", _GATE.watchdog_timeout, "no pressure_command for this "
+              "long -> 0 bar; more than pump.period", "s", 0.005, 60.0),
+    ParamSpec("pump.period", PUMP_PERIOD, "PumpRequest repetition period (the DBC cycle); "
+              "less than pump.watchdog_timeout", "s", 0.001, 1.0),
+    ParamSpec("pump.future_tolerance", _GATE.future_tolerance, "pressure_command stamped "
+              "further ahead of this node's clock than this is refused", "s", 0.0, 10.0),
+    ParamSpec("pump.accept_unstamped", _GATE.accept_unstamped, "admit pressure_command "
+              "without a stamp"),
     ParamSpec("pump.command_source", "", "admit pressure_command from this node only "
               "(name or fully qualified name); empty: any publisher"),
     _ro("input.log_file", "", "replay this CAN log (.asc, .blf, ...) instead of a bus; "
