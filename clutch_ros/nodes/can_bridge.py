@@ -36,6 +36,8 @@ Parameters: the pump limits, ``pump.period``, ``bridge.rate``, ``bridge.publish_
 ``pump.command_source`` apply live, validated (an out-of-range or inconsistent value is
 refused with the reason; a new ``pump.max_pressure`` holds from the next frame on); the bus,
 DBC, signal map and log input are read-only (:mod:`clutch_ros.nodes.can_bridge_params`).
+``pump.rate_limit`` was renamed ``pump.rise_rate_limit`` (as ``controller.rise_rate_limit``);
+the old name is still accepted, at start and live, with a deprecation warning.
 
 QoS (REP 2003; every publisher reliable, so default and sensor-data subscribers both receive):
 
@@ -81,6 +83,7 @@ from clutch_ros.nodes.can_bridge_params import (
     GATE_PARAMS,
     LIVE,
     PARAMS,
+    RENAMED,
     check_change,
     gate_config,
     signal_specs,
@@ -90,8 +93,9 @@ from clutch_ros.nodes.can_diagnostics import hardware_id, node_status
 from clutch_ros.nodes.command_sources import CommandSources
 from clutch_ros.nodes.convert import can_frame_to_ros, rig_state_to_ros
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
-from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, declare_params
+from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM
 from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+from clutch_ros.nodes.renamed_params import declare_with_renames
 from clutch_ros.nodes.runner import run_node
 
 NAME = "can_bridge"
@@ -107,7 +111,7 @@ class CanBridgeNode(LifecycleNode):
 
     def __init__(self):
         super().__init__(NAME)
-        cfg = self._cfg = declare_params(self, PARAMS)
+        cfg = self._cfg = declare_with_renames(self, PARAMS, RENAMED)
         self._send_warn, self._lock, self._failure = LogThrottle(5.0), threading.Lock(), None
         self._command = self._rig_pub = self._cmd_pub = self._raw_pub = self._notifier = None
         self._sub = self._pump_timer = self._flush_timer = None

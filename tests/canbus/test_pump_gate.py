@@ -351,7 +351,7 @@ def test_the_node_declares_the_gate_defaults():
     declared = {spec.name: spec.default for spec in PARAMS}
     assert gate_config(declared) == DEFAULT
     assert declared["pump.period"] == PUMP_PERIOD == DEFAULT.max_step_interval
-    assert declared["pump.rate_limit"] == DEFAULT.rate_limit_up
+    assert declared["pump.rise_rate_limit"] == DEFAULT.rate_limit_up
     assert declared["pump.watchdog_timeout"] == DEFAULT.watchdog_timeout
     assert declared["pump.max_pressure"] == DEFAULT.max_pressure
 
