@@ -6,7 +6,8 @@ A node lists its renames as ``{old name: new name}`` and declares its parameters
 - at start (a ``--params-file`` YAML or ``-p old:=value``), a value given under the old name
   becomes the new parameter's value, with one WARN naming both; when the new name is given as
   well, the new one wins and the WARN says the old one was ignored. The new parameter's
-  descriptor (range, type) checks the value as if it had been given under the new name;
+  descriptor (range) checks the value as if it had been given under the new name, and a
+  value of the wrong type stops the node with one line (a ClutchError);
 - live (``ros2 param set NODE old value``, SetParameters), a pre-set callback renames the
   parameter before validation, with the same WARN, so the node sees only the new name.
 
@@ -20,6 +21,7 @@ from collections.abc import Iterable, Mapping
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.parameter import Parameter
 
+from clutch_ros.errors import ClutchError
 from clutch_ros.nodes.parameters import ParamSpec, declare_params
 
 __all__ = ["declare_with_renames"]
@@ -46,7 +48,11 @@ def declare_with_renames(node, specs: Iterable[ParamSpec], renamed: Mapping[str,
             dynamic_typing=True, description=f"deprecated: renamed {new}"))
         node.undeclare_parameter(old)
         if param.value is not None:
-            given[old] = _coerce(by_name[new], param.value)
+            value = _coerce(by_name[new], param.value)
+            if type(value) is not type(by_name[new].default):
+                raise ClutchError(f"parameter {old} (deprecated, renamed {new}) must be a "
+                                  f"{type(by_name[new].default).__name__}, got {value!r}")
+            given[old] = value
     values = declare_params(node, specs, {renamed[old]: v for old, v in given.items()})
     for old, value in given.items():
         new = renamed[old]

@@ -5,7 +5,7 @@ old name in a YAML parameter file, as ``-p`` (an integer, as people type it), an
 file next to the new name on the command line. Read back over the parameter services, the
 new parameter carries the old name's value (the new name wins when both are given); the old
 name is not declared; a live set of the old name sets the new one. Each use logs a WARN
-naming both.
+naming both. A wrong type or range under the old name fails the start as under the new one.
 """
 
 import os
@@ -13,7 +13,7 @@ import os
 import pytest
 
 from clutch_ros.cli.processes import NodeProcess, isolated_ros_env
-from tests.nodes.rclpy_harness import Harness
+from tests.nodes.rclpy_harness import Harness, assert_bad_settings_fail_at_start
 
 pytestmark = pytest.mark.ros
 
@@ -73,3 +73,11 @@ def test_old_rate_limit_name_is_accepted_with_a_warning(tmp_path):
     assert "1500000.0" in logs["bridge_yaml"] and "2500000.0" in logs["bridge_cli"]
     assert "ignored" in logs["bridge_both"] and "3500000.0" in logs["bridge_both"]
     assert f"setting {NEW}=750000.0" in logs["bridge_cli"]
+
+
+def test_old_rate_limit_name_is_checked_as_the_new_one(ros_env):
+    """A wrong type or an out-of-range value under the old name stops the node with one line."""
+    assert_bad_settings_fail_at_start("can_bridge", {
+        "type": (["-p", f"{OLD}:=fast"], f"{OLD} (deprecated, renamed {NEW}) must be a float"),
+        "range": (["-p", f"{OLD}:=1e12"], NEW),
+    }, ros_env)
