@@ -41,13 +41,17 @@ from clutch_ros.canbus.dbc import PumpRequestCodec
 from clutch_ros.canbus.errors import EncodeError
 from clutch_ros.errors import ConfigError
 
-__all__ = ["REFUSAL_REASONS", "GateOutput", "PumpCommandGate", "PumpGateConfig"]
+__all__ = ["PUMP_PERIOD", "REFUSAL_REASONS", "GateOutput", "PumpCommandGate", "PumpGateConfig"]
 
 #: Why :meth:`PumpCommandGate.submit` refuses a command (``"source"``, ``"inactive"``: refused
 #: by the node, for a foreign publisher or while the node is not active).
 REFUSAL_REASONS = ("stale", "future", "out_of_order", "unstamped", "source", "inactive")
 
 _BAR = 1e5  # [Pa]
+
+#: [s] the PumpRequest cycle: :meth:`PumpCommandGate.tick` is called this often (the
+#: can_bridge's ``pump.period`` default)
+PUMP_PERIOD = 0.01
 
 
 @dataclass(frozen=True)
@@ -62,6 +66,30 @@ class PumpGateConfig:
     ``max_step_interval`` [s]: the longest time between two frames the rate limits credit
     (the bridge passes its ``pump.period``; ``math.inf`` credits all of it).
 
+    The defaults are the configuration the rig runs: the can_bridge node declares its
+    ``pump.*`` parameters with these values (:mod:`clutch_ros.nodes.can_bridge_params` reads
+    them from here; ``tests/canbus/test_pump_gate.py`` checks that the node's declared defaults
+    give exactly this config), so the gate tests test what the node runs. Why these values:
+
+    - ``max_pressure`` 40 bar: the rig's working pressure (the presets' rated point,
+      ``params/flexiforce_8.yaml``), below the DBC maximum of 60 bar.
+    - ``rate_limit_up`` 400 bar/s (0 to 40 bar in 0.1 s, 4 bar per 10 ms frame): a backstop
+      against a runaway command source, not the tuning. Rises below the pump's kick threshold
+      (about 100 bar/s, thesis §5.1.1) are the controller's job (``controller.rise_rate_limit``
+      90 bar/s); a gate limit below the controller's would bind on every ramp and distort the
+      control. Was 200 bar/s here while the node ran 400 bar/s.
+    - ``rate_limit_down`` unlimited: a falling pressure opens the clutch, the safe direction.
+    - ``watchdog_timeout`` 0.2 s: commands come at 100 Hz (20 missed in a row trip it). The
+      same timeout refuses commands stamped older than it, and on a loaded 2-core PC the
+      bridge was seen running 80-110 ms late (:mod:`clutch_ros.nodes.can_bridge`), so 0.1 s
+      would leave little margin before healthy commands are refused and zeroed. It stays
+      below the controller's own input timeouts (0.25 s), and zeroing is the safe side of
+      both. Was 0.1 s here while the node ran 0.2 s.
+    - ``future_tolerance`` 0.05 s: clock offset between hosts that NTP keeps.
+    - ``max_step_interval`` one PumpRequest cycle, :data:`PUMP_PERIOD` (the node passes its
+      ``pump.period``, whose default is that cycle). Was ``math.inf`` here (every elapsed
+      second credited), which the node never ran.
+
     Why ``max_step_interval``: crediting the whole elapsed time lets a frame that leaves late
     (a sender stalled for 50 ms on a loaded PC) carry the rise of every period it missed as
     one step. A pump ECU that boosts fast rises (the kick of thesis §5.1.1) reads that step
@@ -72,12 +100,12 @@ class PumpGateConfig:
     """
 
     max_pressure: float = 40.0 * _BAR
-    rate_limit_up: float = 200.0 * _BAR
+    rate_limit_up: float = 400.0 * _BAR
     rate_limit_down: float = math.inf
-    watchdog_timeout: float = 0.1
+    watchdog_timeout: float = 0.2
     future_tolerance: float = 0.05
     accept_unstamped: bool = False
-    max_step_interval: float = math.inf
+    max_step_interval: float = PUMP_PERIOD
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.max_pressure) and self.max_pressure > 0.0):

@@ -36,6 +36,8 @@ Parameters: the pump limits, ``pump.period``, ``bridge.rate``, ``bridge.publish_
 ``pump.command_source`` apply live, validated (an out-of-range or inconsistent value is
 refused with the reason; a new ``pump.max_pressure`` holds from the next frame on); the bus,
 DBC, signal map and log input are read-only (:mod:`clutch_ros.nodes.can_bridge_params`).
+``pump.rate_limit`` was renamed ``pump.rise_rate_limit`` (as ``controller.rise_rate_limit``);
+the old name is still accepted, at start and live, with a deprecation warning.
 
 QoS (REP 2003; every publisher reliable, so default and sensor-data subscribers both receive):
 
@@ -81,16 +83,19 @@ from clutch_ros.nodes.can_bridge_params import (
     GATE_PARAMS,
     LIVE,
     PARAMS,
+    RENAMED,
     check_change,
     gate_config,
     signal_specs,
 )
+from clutch_ros.nodes.can_bridge_state import BridgeState
 from clutch_ros.nodes.can_diagnostics import hardware_id, node_status
 from clutch_ros.nodes.command_sources import CommandSources
 from clutch_ros.nodes.convert import can_frame_to_ros, rig_state_to_ros
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
-from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, declare_params
+from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM
 from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+from clutch_ros.nodes.renamed_params import declare_with_renames
 from clutch_ros.nodes.runner import run_node
 
 NAME = "can_bridge"
@@ -106,13 +111,12 @@ class CanBridgeNode(LifecycleNode):
 
     def __init__(self):
         super().__init__(NAME)
-        cfg = self._cfg = declare_params(self, PARAMS)
-        self._send_warn, self._lock, self._stop = LogThrottle(5.0), threading.Lock(), None
-        self._active, self._failure, self._state = False, None, "unconfigured"
-        self._command = self._rig_pub = self._cmd_pub = self._raw_pub = None
-        self._assembler = self._bus = self._notifier = self._source = self._log_thread = None
-        self._gate = self._pacer = self._sub = self._pump_timer = self._flush_timer = None
-        self._sources = CommandSources(self, cfg["pump.command_source"])
+        cfg = self._cfg = declare_with_renames(self, PARAMS, RENAMED)
+        self._send_warn, self._lock, self._failure = LogThrottle(5.0), threading.Lock(), None
+        self._command = self._rig_pub = self._cmd_pub = self._raw_pub = self._notifier = None
+        self._sub = self._pump_timer = self._flush_timer = None
+        #: the bridge's components, counters and lifecycle state, read by its diagnostics
+        self.state = BridgeState(CommandSources(self, cfg["pump.command_source"]))
         self._diag = Diagnostics(self, self._diagnose, hardware_id=(
             cfg[HARDWARE_ID_PARAM.name] or hardware_id(cfg)))
         self.add_on_set_parameters_callback(self._check_params)
@@ -125,38 +129,35 @@ class CanBridgeNode(LifecycleNode):
     # -- lifecycle ------------------------------------------------------------------------
     def on_configure(self, state) -> TransitionCallbackReturn:
         """Load the DBC and signal map, open the bus (or check the log); create the topics."""
-        cfg = self._cfg
+        cfg, st = self._cfg, self.state
+        st.clear()  # counters from zero
+        st.last_new = time.monotonic()
         try:
             db = RigDatabase(cfg["bridge.dbc_file"] or None, strict_units=False)
-            self._assembler = RigStateAssembler(db, signal_map=SignalMap(signal_specs(cfg)),
-                                                socketcan_error_frames=cfg["can.interface"]
-                                                == "socketcan")
-            self._gate = PumpCommandGate(time.monotonic, gate_config(cfg),
-                                         self._assembler.map.pump, stamp_clock=lambda: self
-                                         .get_clock().now().nanoseconds * 1e-9)
-            self._pacer = PublishPacer(cfg["bridge.rate"], self._trigger(
-                cfg["bridge.publish_on"]), frozenset(self._assembler.map.writes))
-            self._stop, self._offset, self._last_stamp = threading.Event(), None, None
-            self._last_report = self._stale = None
-            self._published = self._stale_reports = self._foreign_requests = 0
-            self._lag_max = 0.0  # [s] wall clock - sample stamp, largest since the last report
-            self._last_new, self._idle_warned = time.monotonic(), False
+            st.assembler = RigStateAssembler(db, signal_map=SignalMap(signal_specs(cfg)),
+                                             socketcan_error_frames=cfg["can.interface"]
+                                             == "socketcan")
+            st.gate = PumpCommandGate(time.monotonic, gate_config(cfg), st.assembler.map.pump,
+                                      stamp_clock=lambda: self.get_clock().now()
+                                      .nanoseconds * 1e-9)
+            st.pacer = PublishPacer(cfg["bridge.rate"], self._trigger(
+                cfg["bridge.publish_on"]), frozenset(st.assembler.map.writes))
             if cfg["input.log_file"]:
-                self._source = LogSource(cfg["input.log_file"], realtime=cfg["input.realtime"])
-                self._source.check()  # a bad file fails the transition with a clear message
+                st.source = LogSource(cfg["input.log_file"], realtime=cfg["input.realtime"])
+                st.source.check()  # a bad file fails the transition with a clear message
             else:
                 config = BusConfig.from_params(cfg)
-                self._bus = ReconnectingBus(config, on_event=self._on_link_event)
-                self._notifier = can.Notifier(self._bus, [self._on_frame], timeout=0.1)
+                st.bus = ReconnectingBus(config, on_event=self._on_link_event)
+                self._notifier = can.Notifier(st.bus, [self._on_frame], timeout=0.1)
                 self.get_logger().info(f"CAN {config.describe()} open; decoding with {db.path}")
                 self._sub = self.create_subscription(PressureCommand, "pressure_command",
                                                      self._on_command, sensor_qos())
-                self._sources.topic = self._sub.topic_name
+                st.sources.topic = self._sub.topic_name
         except (ClutchError, ValueError) as err:
             self._failure = err
             self.get_logger().error(f"configure failed: {err}")
             self._close_bus()
-            self._assembler = self._gate = self._pacer = None
+            st.clear()
             return FAIL
         self._rig_pub = self.create_lifecycle_publisher(RigState, "rig_state",
                                                         reliable_qos(RIG_STATE_DEPTH))
@@ -165,70 +166,72 @@ class CanBridgeNode(LifecycleNode):
         self._raw_pub = (self.create_lifecycle_publisher(CanFrame, "can_frames",
                                                          reliable_qos(RAW_DEPTH))
                          if cfg["bridge.publish_raw"] else None)
-        self._state = "inactive"
+        st.lifecycle = "inactive"
         return super().on_configure(state)
 
     def on_activate(self, state) -> TransitionCallbackReturn:
         """Start publishing rig_state and sending PumpRequests."""
         result = super().on_activate(state)  # enables the lifecycle publishers
-        if self._source is not None:
-            self._stop.clear()
-            self._log_thread = threading.Thread(target=self._replay, name="can_log",
-                                                daemon=True)
-            self._log_thread.start()
+        st = self.state
+        if st.source is not None:
+            st.stop.clear()
+            st.log_thread = threading.Thread(target=self._replay, name="can_log", daemon=True)
+            st.log_thread.start()
         else:
             self._pump_timer = self.create_timer(self._cfg["pump.period"],
-                                                 lambda: self._send(self._gate.tick()))
+                                                 lambda: self._send(st.gate.tick()))
             self._flush_timer = self.create_timer(self._flush_period(), lambda: (
-                self._publish_latest(self._pacer.flush)))
-        self._active, self._state = True, "active"
+                self._publish_latest(st.pacer.flush)))
+        st.active, st.lifecycle = True, "active"
         return result
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
         """Send 0 bar at once, then stop publishing and sending."""
         self._halt("deactivate")
-        self._state = "inactive"
+        self.state.lifecycle = "inactive"
         return super().on_deactivate(state)
 
     def on_cleanup(self, state) -> TransitionCallbackReturn:
-        """Close the bus and remove the topics."""
+        """Close the bus, remove the topics and clear the state."""
         self._close_bus()
         for pub in (self._rig_pub, self._cmd_pub, self._raw_pub):
             if pub is not None:
                 self.destroy_lifecycle_publisher(pub)
         if self._sub is not None:
             self.destroy_subscription(self._sub)
-        self._sub = self._assembler = self._gate = self._raw_pub = None
-        self._state = "unconfigured"
+        self._sub = self._rig_pub = self._cmd_pub = self._raw_pub = None
+        self.state.clear()
+        self.state.lifecycle = "unconfigured"
         return super().on_cleanup(state)
 
     def on_shutdown(self, state) -> TransitionCallbackReturn:
         """From any state: 0 bar when active, close the bus."""
         self.close()
-        self._state = "finalized"
+        self.state.lifecycle = "finalized"
         return super().on_shutdown(state)
 
     def _halt(self, why: str) -> None:
         """Stop sending and publishing; a last 0 bar PumpRequest when the bus is open."""
-        was_active, self._active = self._active, False
+        st = self.state
+        was_active, st.active = st.active, False
         for timer in (self._pump_timer, self._flush_timer):
             if timer is not None:
                 timer.cancel()
                 self.destroy_timer(timer)
         self._pump_timer = self._flush_timer = None
-        if self._stop is not None:
-            self._stop.set()
-        if self._log_thread is not None:
-            self._log_thread.join(timeout=2.0)
-        if was_active and self._bus is not None:
-            self._send(self._gate.zero(why), timeout=0.05)
+        st.stop.set()
+        if st.log_thread is not None:
+            st.log_thread.join(timeout=2.0)
+        if was_active and st.bus is not None:
+            self._send(st.gate.zero(why), timeout=0.05)
 
     def _close_bus(self) -> None:
+        st = self.state
         if self._notifier is not None:
             self._notifier.stop()
-        if self._bus is not None:
-            self._bus.shutdown()
-        self._notifier = self._bus = self._source = None
+        if st.bus is not None:
+            st.bus.shutdown()
+        self._notifier = st.bus = st.source = None
 
     def close(self) -> None:
         """Send a last 0 bar request when active, stop the threads and close the bus."""
@@ -239,8 +242,9 @@ class CanBridgeNode(LifecycleNode):
     def _check_params(self, params) -> SetParametersResult:
         values = dict(self._cfg)
         values.update({p.name: p.value for p in params if p.name in self._cfg})
-        reason = check_change(values, self._gate.codec.max_pressure if self._gate else None)
-        if reason is None and self._assembler is not None and any(
+        gate = self.state.gate
+        reason = check_change(values, gate.codec.max_pressure if gate else None)
+        if reason is None and self.state.assembler is not None and any(
                 p.name == "bridge.publish_on" for p in params):
             try:
                 self._trigger(values["bridge.publish_on"])
@@ -252,17 +256,17 @@ class CanBridgeNode(LifecycleNode):
         """Apply accepted live values at once (before the next frame)."""
         names = {p.name for p in params if p.name in LIVE}
         self._cfg.update({p.name: p.value for p in params if p.name in self._cfg})
-        cfg = self._cfg
-        if names & set(GATE_PARAMS) and self._gate is not None:
-            self._gate.reconfigure(gate_config(cfg))
+        cfg, st = self._cfg, self.state
+        if names & set(GATE_PARAMS) and st.gate is not None:
+            st.gate.reconfigure(gate_config(cfg))
         if "pump.command_source" in names:
-            self._sources.wanted = cfg["pump.command_source"].strip()
+            st.sources.wanted = cfg["pump.command_source"].strip()
         if "pump.period" in names and self._pump_timer is not None:
             self._pump_timer.timer_period_ns = int(cfg["pump.period"] * 1e9)
-        if names & {"bridge.rate", "bridge.publish_on"} and self._pacer is not None:
+        if names & {"bridge.rate", "bridge.publish_on"} and st.pacer is not None:
             with self._lock:
-                self._pacer.rate = cfg["bridge.rate"]
-                self._pacer.trigger = self._trigger(cfg["bridge.publish_on"])
+                st.pacer.rate = cfg["bridge.rate"]
+                st.pacer.trigger = self._trigger(cfg["bridge.publish_on"])
             if self._flush_timer is not None:
                 self._flush_timer.timer_period_ns = int(self._flush_period() * 1e9)
         if names:
@@ -273,12 +277,13 @@ class CanBridgeNode(LifecycleNode):
         """Frame key of ``bridge.publish_on`` (a DBC message or a signal map key)."""
         if not name:
             return None
-        message = self._assembler.map.messages.get(name, name)
-        return self._assembler.db.frame(message).key
+        assembler = self.state.assembler
+        message = assembler.map.messages.get(name, name)
+        return assembler.db.frame(message).key
 
     def _flush_period(self) -> float:
         period = 1.0 / self._cfg["bridge.rate"]  # with publish_on: only flushes held frames
-        return period if self._pacer.trigger is None else max(period, FLUSH_PERIOD)
+        return period if self.state.pacer.trigger is None else max(period, FLUSH_PERIOD)
 
     # -- receive --------------------------------------------------------------------------
     def _on_link_event(self, event) -> None:  # the bus rate-limits its own log lines
@@ -293,34 +298,37 @@ class CanBridgeNode(LifecycleNode):
 
     def _on_frame(self, frame) -> None:
         """Notifier thread: frame -> live sample -> (pacer) -> rig_state when active."""
+        st = self.state
+        assembler = st.assembler
         try:
-            key = self._assembler.feed(frame)
-            if not self._active:
+            key = assembler.feed(frame)
+            if not st.active:
                 return
             if self._raw_pub is not None:
-                self._raw_pub.publish(can_frame_to_ros(frame, self._offset or 0.0))
+                self._raw_pub.publish(can_frame_to_ros(frame, st.offset or 0.0))
             if key is None:
                 return
-            if key == self._gate.codec.spec.key:  # ours never come back (echoes removed)
-                self._foreign_requests += 1
-            self._publish_latest(self._pacer.on_frame, key)
+            if key == st.gate.codec.spec.key:  # ours never come back (echoes removed)
+                st.foreign_pump_requests += 1
+            self._publish_latest(st.pacer.on_frame, key)
         except Exception as err:  # noqa: BLE001 - counted; the Notifier thread must live
-            self._assembler.on_error(err)
+            assembler.on_error(err)
 
     def _replay(self) -> None:
-        source, stop = self._source, self._stop
+        st = self.state
+        source, stop = st.source, st.stop
         # the writer's own matched readers, not the graph's count: a reader the graph knows
         # may not be matched by the writer yet, and what is sent before is lost to it
         while self._rig_pub.get_subscription_count() < self._cfg["input.wait_for_subscribers"]:
             if stop.wait(0.05):
                 return
         try:
-            for sample in source.samples(self._assembler, 1.0 / self._cfg["bridge.rate"], stop):
-                if self._offset is None and source.first_time is not None:
-                    self._offset = time.time() - source.first_time
+            for sample in source.samples(st.assembler, 1.0 / self._cfg["bridge.rate"], stop):
+                if st.offset is None and source.first_time is not None:
+                    st.offset = time.time() - source.first_time
                 self._publish(sample)
             self.get_logger().info(f"log {source.path} done: {source.frames_read} frames, "
-                                   f"{self._published} rig_state published")
+                                   f"{st.published} rig_state published")
         except Exception as err:  # noqa: BLE001 - report, never crash the node
             self.get_logger().error(f"log replay stopped: {err}")
 
@@ -329,40 +337,43 @@ class CanBridgeNode(LifecycleNode):
 
         Runs on the Notifier thread (frames) and the executor (timer), hence the lock.
         """
+        st = self.state
         with self._lock:
             if not decide(*args, time.monotonic()):
                 return
-            newest = self._assembler.newest_time
-            if newest is not None and self._offset is None:  # relative clocks -> the epoch
+            newest = st.assembler.newest_time
+            if newest is not None and st.offset is None:  # relative clocks -> the epoch
                 skew = time.time() - newest
-                self._offset = skew if abs(skew) > 3600.0 else 0.0
-            if newest is None or not self._publish(self._assembler.snapshot()):
-                self._pacer.refund()
+                st.offset = skew if abs(skew) > 3600.0 else 0.0
+            if newest is None or not self._publish(st.assembler.snapshot()):
+                st.pacer.refund()
                 return
-            self._lag_max = max(self._lag_max, time.time() - self._offset - newest)
+            st.lag_max = max(st.lag_max, time.time() - st.offset - newest)
 
     def _publish(self, sample) -> bool:
-        if sample.stamp is None or sample.stamp == self._last_stamp or not self._active:
+        st = self.state
+        if sample.stamp is None or sample.stamp == st.last_stamp or not st.active:
             return False
-        self._last_stamp, self._last_new, self._stale = sample.stamp, time.monotonic(), \
-            sample.stale
-        self._stale_reports += bool(sample.stale_mask)
-        self._rig_pub.publish(rig_state_to_ros(sample, self._offset or 0.0))
-        self._published += 1
+        st.last_stamp, st.last_new = sample.stamp, time.monotonic()
+        st.stale_groups = sample.stale
+        st.stale_samples += bool(sample.stale_mask)
+        self._rig_pub.publish(rig_state_to_ros(sample, st.offset or 0.0))
+        st.published += 1
         return True
 
     # -- send -----------------------------------------------------------------------------
     def _on_command(self, msg, info) -> None:
-        self._sources.count_sequence(info)
+        st = self.state
+        st.sources.count_sequence(info)
         refusal = ("inactive", "command refused: can_bridge is not active") \
-            if not self._active else ("source", self._sources.check(info))
+            if not st.active else ("source", st.sources.check(info))
         if refusal[1] is not None:
-            self._gate.refuse(*refusal)
+            st.gate.refuse(*refusal)
             return
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        admitted = self._gate.commands
-        out = self._gate.submit(msg.pressure, stamp if stamp > 0.0 else None)
-        self._send(out, msg if self._gate.commands != admitted else None)
+        admitted = st.gate.commands
+        out = st.gate.submit(msg.pressure, stamp if stamp > 0.0 else None)
+        self._send(out, msg if st.gate.commands != admitted else None)
 
     def _send(self, out, command=None, timeout: float = SEND_TIMEOUT) -> None:
         """Send the gate's frame (if any); report it on pump_request when new or changed.
@@ -373,15 +384,16 @@ class CanBridgeNode(LifecycleNode):
             self._command = command
         if out is None:
             return
+        st = self.state
         try:
-            self._bus.send(out.frame, timeout=timeout)
+            st.bus.send(out.frame, timeout=timeout)
         except CanError as err:  # link down: the pump's own timeout takes it to 0 bar
             if self._send_warn.ready():
                 self.get_logger().warning(f"pump request not sent: {err}")
         command, self._command = self._command, None
-        if command is None and (out.pressure, out.reason) == self._last_report:
+        if command is None and (out.pressure, out.reason) == st.last_report:
             return
-        self._last_report = (out.pressure, out.reason)
+        st.last_report = (out.pressure, out.reason)
         applied = PressureCommand(pressure=float(out.pressure), limited=bool(out.limited),
                                   reason=out.reason)
         applied.header.stamp = self.get_clock().now().to_msg()
@@ -395,7 +407,7 @@ class CanBridgeNode(LifecycleNode):
 
     # -- health ---------------------------------------------------------------------------
     def _diagnose(self):
-        return node_status(self, IDLE_TIMEOUT)
+        return node_status(self.state, self.get_logger(), IDLE_TIMEOUT)
 
 
 def main(args=None) -> int:

@@ -1,7 +1,7 @@
 """The can_bridge node's parameters: which apply live, which are read-only and why.
 
 Live (an on-set-parameters callback validates, the node applies accepted values at once):
-``pump.max_pressure``, ``pump.rate_limit``, ``pump.watchdog_timeout``,
+``pump.max_pressure``, ``pump.rise_rate_limit``, ``pump.watchdog_timeout``,
 ``pump.future_tolerance``, ``pump.accept_unstamped`` (the next PumpRequest obeys them),
 ``pump.period`` and ``bridge.rate`` (timer periods), ``bridge.publish_on`` (the trigger frame),
 ``pump.command_source``. Ranges come from the descriptors (ROS refuses an out-of-range value
@@ -11,6 +11,14 @@ Read-only (descriptor ``read_only``; the description says why): the CAN bus (``c
 the DBC and signal map (``bridge.dbc_file``, ``map.*``) are opened and checked at configure,
 ``bridge.publish_raw`` decides at configure whether ``can_frames`` is advertised, the log
 input (``input.*``) is chosen at configure, ``autostart`` acts at start only.
+
+Defaults: the pump limits' defaults are :class:`~clutch_ros.canbus.PumpGateConfig`'s (why
+those values: its docstring), read from there, never written here again.
+
+Renamed: ``pump.rate_limit`` is now ``pump.rise_rate_limit`` (:data:`RENAMED`), the name of
+the same limit in the controller (``controller.rise_rate_limit``); the old name is still
+accepted in YAML files, ``-p`` and live sets, with a deprecation warning
+(:mod:`clutch_ros.nodes.renamed_params`).
 """
 
 from __future__ import annotations
@@ -18,11 +26,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from clutch_ros.canbus import PumpGateConfig
+from clutch_ros.canbus.pump_gate import PUMP_PERIOD
 from clutch_ros.canbus.signal_map import KEYS, SignalMap
 from clutch_ros.errors import ClutchError
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec
 
-__all__ = ["GATE_PARAMS", "LIVE", "PARAMS", "check_change", "gate_config", "signal_specs"]
+__all__ = ["GATE_PARAMS", "LIVE", "PARAMS", "RENAMED", "check_change", "gate_config",
+           "signal_specs"]
 
 _BUS = "; read-only: the bus is opened at configure (set it at start)"
 _DBC = "; read-only: the DBC and signal map are loaded and checked at configure"
@@ -33,6 +43,7 @@ def _ro(name, default, description, unit="", minimum=None, maximum=None) -> Para
 
 
 _MAP_DEFAULTS = SignalMap.default_specs()
+_GATE = PumpGateConfig()  # the defaults of the pump limits
 PARAMS = [
     _ro("autostart", True, "configure and activate at start (false: wait for the lifecycle "
         "services); read-only: acts at start only"),
@@ -53,16 +64,19 @@ PARAMS = [
               "bridge.rate timer"),
     _ro("bridge.publish_raw", False, "publish every frame on can_frames; read-only: decides "
         "at configure whether can_frames is advertised"),
-    ParamSpec("pump.max_pressure", 40e5, "largest pressure ever requested", "Pa", 1e4, 60e5),
-    ParamSpec("pump.rate_limit", 400e5, "maximum rise of the requested pressure; a frame "
-              "that leaves late rises by at most one pump.period's worth", "Pa/s", 1e3, 1e10),
-    ParamSpec("pump.watchdog_timeout", 0.2, "no pressure_command for this long -> 0 bar; "
-              "more than pump.period", "s", 0.005, 60.0),
-    ParamSpec("pump.period", 0.01, "PumpRequest repetition period (the DBC cycle); less than "
-              "pump.watchdog_timeout", "s", 0.001, 1.0),
-    ParamSpec("pump.future_tolerance", 0.05, "pressure_command stamped further ahead of "
-              "this node's clock than this is refused", "s", 0.0, 10.0),
-    ParamSpec("pump.accept_unstamped", False, "admit pressure_command without a stamp"),
+    ParamSpec("pump.max_pressure", _GATE.max_pressure, "largest pressure ever requested",
+              "Pa", 1e4, 60e5),
+    ParamSpec("pump.rise_rate_limit", _GATE.rate_limit_up, "maximum rise of the requested "
+              "pressure; a frame that leaves late rises by at most one pump.period's worth "
+              "(formerly pump.rate_limit, still accepted with a warning)", "Pa/s", 1e3, 1e10),
+    ParamSpec("pump.watchdog_timeout", _GATE.watchdog_timeout, "no pressure_command for this "
+              "long -> 0 bar; more than pump.period", "s", 0.005, 60.0),
+    ParamSpec("pump.period", PUMP_PERIOD, "PumpRequest repetition period (the DBC cycle); "
+              "less than pump.watchdog_timeout", "s", 0.001, 1.0),
+    ParamSpec("pump.future_tolerance", _GATE.future_tolerance, "pressure_command stamped "
+              "further ahead of this node's clock than this is refused", "s", 0.0, 10.0),
+    ParamSpec("pump.accept_unstamped", _GATE.accept_unstamped, "admit pressure_command "
+              "without a stamp"),
     ParamSpec("pump.command_source", "", "admit pressure_command from this node only "
               "(name or fully qualified name); empty: any publisher"),
     _ro("input.log_file", "", "replay this CAN log (.asc, .blf, ...) instead of a bus; "
@@ -78,16 +92,18 @@ PARAMS = [
 ]
 
 #: parameters of the pump gate (applied with :meth:`PumpCommandGate.reconfigure`)
-GATE_PARAMS = ("pump.max_pressure", "pump.rate_limit", "pump.watchdog_timeout",
+GATE_PARAMS = ("pump.max_pressure", "pump.rise_rate_limit", "pump.watchdog_timeout",
                "pump.future_tolerance", "pump.accept_unstamped", "pump.period")
 #: parameters applied live
 LIVE = frozenset(s.name for s in PARAMS if not s.read_only)
+#: old parameter name -> its new name (accepted with a deprecation warning)
+RENAMED = {"pump.rate_limit": "pump.rise_rate_limit"}
 
 
 def gate_config(values: Mapping[str, object]) -> PumpGateConfig:
     """Return the pump gate limits of the parameter values ``values``."""
     return PumpGateConfig(max_pressure=values["pump.max_pressure"],
-                          rate_limit_up=values["pump.rate_limit"],
+                          rate_limit_up=values["pump.rise_rate_limit"],
                           watchdog_timeout=values["pump.watchdog_timeout"],
                           future_tolerance=values["pump.future_tolerance"],
                           accept_unstamped=values["pump.accept_unstamped"],

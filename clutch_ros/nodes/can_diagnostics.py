@@ -14,11 +14,18 @@ since start; rates are per second since the previous report.
 Size: the values are bounded whatever the bus carries (per-identifier rates for the DBC's
 frames only, the ten most frequent unknown identifiers in one value with the rest summed,
 reasons from fixed sets); :data:`MAX_VALUES` is a last guard.
+
+Everything comes from the node's :class:`~clutch_ros.nodes.can_bridge_state.BridgeState`
+(its public fields); the counts of the previous report, against which "new" is judged, are
+kept there too (``reported``), so they start again at configure and go with the node.
 """
 
 from __future__ import annotations
 
 import time
+
+from clutch_ros.nodes.can_bridge_state import BridgeState
+from clutch_ros.nodes.controller_params import RIG_TIMEOUT
 
 __all__ = ["MAX_VALUES", "SOFTWARE_BUSES", "bridge_status", "hardware_id", "node_status"]
 
@@ -40,23 +47,23 @@ def hardware_id(params) -> str:
 
 #: [s] a rig_state published this long after its newest frame makes the status WARN: the
 #: controller's default ``controller.rig_timeout`` (0.25 s), when data that late is refused.
-LAG_WARN = 0.25
+LAG_WARN = RIG_TIMEOUT
 #: Most key/values one status carries (a guard; the values are bounded by construction).
 MAX_VALUES = 200
 
-_previous: dict[int, dict] = {}
 
-
-def bridge_status(assembler, bus, gate, rig_keys, extra: dict):
+def bridge_status(state: BridgeState, extra: dict):
     """Return ``(level, message, values)`` for the bridge's /diagnostics status.
 
-    ``rig_keys``: frame keys of the rig's signal groups; ``extra``: node values added as
-    they are, among them ``stale_groups`` (groups stale in the last published sample) and
+    ``state``: a configured bridge's state (assembler, gate, bus, pacer; its ``reported``
+    counts are updated); ``extra``: node values added as they are, among them
+    ``stale_groups`` (groups stale in the last published sample) and
     ``foreign_pump_requests`` (PumpRequest data frames received).
     """
+    assembler, bus, gate, prev = state.assembler, state.bus, state.gate, state.reported
+    rig_keys = state.pacer.fallback  # frame keys of the rig's signal groups
     c = assembler.counters()
     total_rate, per_id = assembler.rates(time.monotonic())
-    prev = _previous.setdefault(id(assembler), {})
     values = {
         "frames_total": c.frames_total, "frame_rate_hz": total_rate,
         "rig_frame_rate_hz": sum(r for k, r in per_id.items() if k in rig_keys),
@@ -122,38 +129,37 @@ def bridge_status(assembler, bus, gate, rig_keys, extra: dict):
     return level, "; ".join(problems) or "bridging", values
 
 
-def node_status(bridge, idle_timeout: float):
-    """Return the /diagnostics ``(level, message, values)`` of a ``CanBridgeNode``.
+def node_status(state: BridgeState, logger, idle_timeout: float):
+    """Return the /diagnostics ``(level, message, values)`` of a can_bridge's ``state``.
 
     Unconfigured: its lifecycle state only. Otherwise :func:`bridge_status` with the node's
     own values (lifecycle state, rig_state published, stale groups, the largest publishing lag
     since the previous report [s], command publishers or the log replay); the message starts
     with the state unless active. An idle bus (no new rig frame for ``idle_timeout`` [s]) while
-    active logs one warning, and one line when frames come back.
+    active logs one warning on ``logger``, and one line when frames come back.
     """
-    state = bridge._state
-    if bridge._assembler is None:
-        return "OK", state, {"lifecycle_state": state}
-    if bridge._bus is not None and bridge._active:
-        idle = time.monotonic() - bridge._last_new
-        if idle > idle_timeout and not bridge._idle_warned:
-            bridge._idle_warned = True
-            bridge.get_logger().warning(f"no new rig frames for {idle:.1f} s; rig_state paused")
-        elif idle <= idle_timeout and bridge._idle_warned:
-            bridge._idle_warned = False
-            bridge.get_logger().info("rig frames again; rig_state resumed")
-    extra = {"lifecycle_state": state, "rig_state_published": bridge._published,
-             "stale_samples": bridge._stale_reports,
-             "stale_groups": ", ".join(bridge._stale or []),
-             "receive_lag_max_s": bridge._lag_max,
-             "foreign_pump_requests": bridge._foreign_requests}
-    source, thread = bridge._source, bridge._log_thread
+    lifecycle = state.lifecycle
+    if state.assembler is None:
+        return "OK", lifecycle, {"lifecycle_state": lifecycle}
+    if state.bus is not None and state.active:
+        idle = time.monotonic() - state.last_new
+        if idle > idle_timeout and not state.idle_warned:
+            state.idle_warned = True
+            logger.warning(f"no new rig frames for {idle:.1f} s; rig_state paused")
+        elif idle <= idle_timeout and state.idle_warned:
+            state.idle_warned = False
+            logger.info("rig frames again; rig_state resumed")
+    extra = {"lifecycle_state": lifecycle, "rig_state_published": state.published,
+             "stale_samples": state.stale_samples,
+             "stale_groups": ", ".join(state.stale_groups or []),
+             "receive_lag_max_s": state.lag_max,
+             "foreign_pump_requests": state.foreign_pump_requests}
+    source, thread = state.source, state.log_thread
     if source is None:
-        extra.update(bridge._sources.diagnose())
+        extra.update(state.sources.diagnose())
     else:
         extra.update(log_file=str(source.path), log_frames=source.frames_read,
                      log_done=thread is not None and not thread.is_alive())
-    bridge._lag_max = 0.0  # the next report covers the next period
-    level, message, values = bridge_status(bridge._assembler, bridge._bus, bridge._gate,
-                                           bridge._pacer.fallback, extra)
-    return level, (message if bridge._active else f"{state}; {message}"), values
+    state.lag_max = 0.0  # the next report covers the next period
+    level, message, values = bridge_status(state, extra)
+    return level, (message if state.active else f"{lifecycle}; {message}"), values

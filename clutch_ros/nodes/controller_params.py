@@ -1,10 +1,11 @@
 """The controller node's parameters (``controller.*``): unit, range, description, defaults.
 
 Every one applies live (the node validates a change as a whole and applies it from the next
-tick, :mod:`clutch_ros.nodes.controller`). The trim and caution defaults come from
-:class:`clutch_ros.model.control.ControllerSettings`; :func:`controller_settings` turns the
-declared values back into settings (the model validates them and raises a ClutchError with
-its reason).
+tick, :mod:`clutch_ros.nodes.controller`). Every default of a control-law setting comes from
+:class:`clutch_ros.model.control.ControllerSettings` (written once, there; ``controller.rate``
+is ``1 / period``); :func:`controller_settings` turns the declared values back into settings
+(the model validates them and raises a ClutchError with its reason). The input timeouts
+and ``controller.use_adapted_model`` belong to the node alone and are written here.
 """
 
 from __future__ import annotations
@@ -12,32 +13,38 @@ from __future__ import annotations
 from clutch_ros.model.control import ControllerSettings
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec
 
-__all__ = ["PARAMS", "TIMEOUTS", "controller_settings"]
+__all__ = ["PARAMS", "RIG_TIMEOUT", "TIMEOUTS", "controller_settings"]
 
-_C = ControllerSettings()  # the defaults of the trim and caution parameters
+#: [s] default ``controller.rig_timeout``: rig_state older than this is stale (also the
+#: can_bridge's publishing-lag warning, :data:`clutch_ros.nodes.can_diagnostics.LAG_WARN`)
+RIG_TIMEOUT = 0.25
+_C = ControllerSettings()  # the defaults of the control-law parameters
 PARAMS = [
-    ParamSpec("controller.rate", 100.0, "command publishing rate", "Hz", 1.0, 2000.0),
-    ParamSpec("controller.min_pressure", 0.0, "lowest commanded pressure", "Pa", 0.0, 1e8),
-    ParamSpec("controller.max_pressure", 40e5, "highest commanded pressure", "Pa", 0.0, 1e8),
-    ParamSpec("controller.rise_rate_limit", 90e5, "maximum pressure rise; below the pump's "
-              "kick threshold (about 100 bar/s, thesis 5.1.1)", "Pa/s", 1.0, 1e10),
-    ParamSpec("controller.fall_rate_limit", 400e5, "maximum pressure fall (fail-safe zeroing "
-              "bypasses it)", "Pa/s", 1.0, 1e10),
-    ParamSpec("controller.torque_ramp_rate", 4000.0, "maximum slew of the torque target "
-              "(request ramping)", "N m/s", 1.0, 1e7),
-    ParamSpec("controller.lead_time", 0.2, "the target is advanced by lead_time x the request "
-              "slope: pack lag c/k (0.1 s), pump lag (~0.05 s) and transport delay", "s",
-              0.0, 2.0),
+    ParamSpec("controller.rate", 1.0 / _C.period, "command publishing rate", "Hz", 1.0,
+              2000.0),
+    ParamSpec("controller.min_pressure", _C.min_pressure, "lowest commanded pressure", "Pa",
+              0.0, 1e8),
+    ParamSpec("controller.max_pressure", _C.max_pressure, "highest commanded pressure", "Pa",
+              0.0, 1e8),
+    ParamSpec("controller.rise_rate_limit", _C.rise_rate_limit, "maximum pressure rise; below "
+              "the pump's kick threshold (about 100 bar/s, thesis 5.1.1)", "Pa/s", 1.0, 1e10),
+    ParamSpec("controller.fall_rate_limit", _C.fall_rate_limit, "maximum pressure fall "
+              "(fail-safe zeroing bypasses it)", "Pa/s", 1.0, 1e10),
+    ParamSpec("controller.torque_ramp_rate", _C.torque_ramp_rate, "maximum slew of the torque "
+              "target (request ramping)", "N m/s", 1.0, 1e7),
+    ParamSpec("controller.lead_time", _C.lead_time, "the target is advanced by lead_time x the "
+              "request slope: pack lag c/k (0.1 s), pump lag (~0.05 s) and transport delay",
+              "s", 0.0, 2.0),
     ParamSpec("controller.fall_lead_time", _C.fall_lead_time, "lead_time on a falling "
               "request: pump lag, transport delay and the pack's hysteresis at the reversal "
               "add up there", "s", 0.0, 2.0),
-    ParamSpec("controller.lead_max_rate", 1000.0, "bound of the request slope used by the "
-              "lead (steps are not differentiated into spikes); a faster request change is a "
-              "step (the trim holds, trim_delay)", "N m/s", 0.0, 1e6),
-    ParamSpec("controller.overshoot_margin", 0.05, "overshoot guard: pressure never above the "
-              "steady-state inverse of (1 + margin) x request", "1", 0.0, 1.0),
-    ParamSpec("controller.spline_correction_gain", 1.0, "weight of the dynamic spline-friction "
-              "correction (0 = steady-state inverse only)", "1", 0.0, 2.0),
+    ParamSpec("controller.lead_max_rate", _C.lead_max_rate, "bound of the request slope used "
+              "by the lead (steps are not differentiated into spikes); a faster request change "
+              "is a step (the trim holds, trim_delay)", "N m/s", 0.0, 1e6),
+    ParamSpec("controller.overshoot_margin", _C.overshoot_margin, "overshoot guard: pressure "
+              "never above the steady-state inverse of (1 + margin) x request", "1", 0.0, 1.0),
+    ParamSpec("controller.spline_correction_gain", _C.correction_gain, "weight of the dynamic "
+              "spline-friction correction (0 = steady-state inverse only)", "1", 0.0, 2.0),
     ParamSpec("controller.use_adapted_model", True, "invert the model with the estimate's "
               "adapted friction_scale (and spline_gain_scale)"),
     ParamSpec("controller.trim_rate", _C.trim_rate, "integral gain of the torque trim on the "
@@ -59,8 +66,8 @@ PARAMS = [
               "at the next change of the request", "1", 0.0, 5.0),
     ParamSpec("controller.request_timeout", 0.5, "a torque request older than this is stale "
               "-> 0 Pa", "s", 0.001, 3600.0),
-    ParamSpec("controller.rig_timeout", 0.25, "rig_state older than this is stale -> 0 Pa", "s",
-              0.001, 3600.0),
+    ParamSpec("controller.rig_timeout", RIG_TIMEOUT, "rig_state older than this is stale -> 0 Pa",
+              "s", 0.001, 3600.0),
     ParamSpec("controller.estimate_timeout", 0.25, "clutch_estimate older than this is stale "
               "-> 0 Pa", "s", 0.001, 3600.0),
     HARDWARE_ID_PARAM,

@@ -1,4 +1,9 @@
-"""PumpCommandGate: every frame within limits; admission by stamp; frames at the cycle; watchdog."""
+"""PumpCommandGate: every frame within limits; admission by stamp; frames at the cycle; watchdog.
+
+The gate's defaults are the configuration the can_bridge node runs (its declared ``pump.*``
+defaults give exactly ``PumpGateConfig()``, checked here); tests that do not name a limit run
+with them.
+"""
 
 import math
 import random
@@ -7,10 +12,11 @@ import pytest
 from numpy.testing import assert_allclose
 
 from clutch_ros.canbus.dbc import PumpRequestCodec
-from clutch_ros.canbus.pump_gate import PumpCommandGate, PumpGateConfig
+from clutch_ros.canbus.pump_gate import PUMP_PERIOD, PumpCommandGate, PumpGateConfig
 from clutch_ros.errors import ConfigError
 
 BAR = 1e5
+DEFAULT = PumpGateConfig()  # what the node runs
 
 
 class FakeClock:
@@ -88,24 +94,26 @@ def test_huge_commands_are_clamped(db, value):
 
 def test_watchdog_zeroes_within_timeout(db):
     clock = FakeClock()
-    gate = make_gate(db, clock, rate_limit_up=math.inf, watchdog_timeout=0.1)
+    timeout = DEFAULT.watchdog_timeout  # the node's (0.2 s)
+    gate = make_gate(db, clock, rate_limit_up=math.inf)
     command(gate, clock, 30e5)
     t0 = clock.t
     outputs = []
-    for _ in range(30):  # 10 ms PumpRequest cycle
-        clock.t += 0.01
+    for _ in range(round(timeout / PUMP_PERIOD) + 10):  # 10 ms PumpRequest cycle
+        clock.t += PUMP_PERIOD
         outputs.append((clock.t - t0, gate.tick()))
-    held = [o for dt, o in outputs if dt <= 0.1 - 1e-9]
+    held = [o for dt, o in outputs if dt <= timeout - 1e-9]
     tripped = [(dt, o) for dt, o in outputs if o.pressure == 0.0]
+    assert len(held) >= round(timeout / PUMP_PERIOD) - 1
     assert all(o.pressure == pytest.approx(30e5) for o in held)
     first_dt, first = tripped[0]
-    assert first_dt <= 0.1 + 0.01 + 1e-9  # zero within the timeout plus one cycle
+    assert first_dt <= timeout + PUMP_PERIOD + 1e-9  # zero within the timeout plus one cycle
     assert "watchdog" in first.reason and first.limited
     assert all(o.pressure == 0.0 for dt, o in outputs if dt > first_dt)
     assert gate.watchdog_trips == 1  # one trip per command gap, not one per frame
     clock.t += 0.01
     assert command(gate, clock, 10e5).pressure == pytest.approx(10e5)
-    clock.t += 0.5
+    clock.t += timeout + 0.3
     gate.tick()
     assert gate.watchdog_trips == 2
 
@@ -275,19 +283,22 @@ def test_watchdog_fuzz_zero_after_timeout(db):
     """Random command gaps: any tick later than the timeout after the last command is 0 bar."""
     rng = random.Random(7)
     clock = FakeClock()
-    gate = make_gate(db, clock, rate_limit_up=math.inf, watchdog_timeout=0.1)
-    last = None
+    timeout = DEFAULT.watchdog_timeout  # the node's
+    gate = make_gate(db, clock, rate_limit_up=math.inf)
+    last, trips = None, 0
     for _ in range(2000):
-        clock.t += rng.choice([0.01, 0.03, 0.07, 0.15])
+        clock.t += rng.choice([0.01, 0.03, 0.07, 0.15, 0.25])
         if rng.random() < 0.3:
             gate.submit(rng.uniform(1, 40) * BAR, clock.t)
             last = clock.t
         else:
             out = gate.tick()
-            if last is not None and clock.t - last > 0.1:
+            if last is not None and clock.t - last > timeout:
+                trips += 1
                 assert out.pressure == 0.0 and "watchdog" in out.reason
             elif last is not None:
                 assert out.pressure > 0.0
+    assert trips > 50  # the gaps beyond the timeout were exercised
 
 
 def test_gate_config_validation(db):
@@ -304,9 +315,10 @@ def test_gate_config_validation(db):
 def test_a_late_frame_rises_by_one_period_at_most(db):
     """A frame after a stall carries one period's rise, not the whole stall's (the kick)."""
     clock = FakeClock()
-    capped = make_gate(db, clock, rate_limit_up=90 * BAR, watchdog_timeout=10.0,
-                       max_step_interval=0.01)
-    uncapped = make_gate(db, clock, rate_limit_up=90 * BAR, watchdog_timeout=10.0)
+    capped = make_gate(db, clock, rate_limit_up=90 * BAR, watchdog_timeout=10.0)  # the default
+    uncapped = make_gate(db, clock, rate_limit_up=90 * BAR, watchdog_timeout=10.0,
+                         max_step_interval=math.inf)
+    assert capped.config.max_step_interval == PUMP_PERIOD == 0.01
     for gate in (capped, uncapped):
         command(gate, clock, 0.0)
     clock.t += 0.01
@@ -328,3 +340,35 @@ def test_a_late_frame_rises_by_one_period_at_most(db):
     assert max(steps[id(uncapped)]) >= 4.5 * BAR - 100.0
     with pytest.raises(ConfigError, match="max_step_interval"):
         PumpGateConfig(max_step_interval=0.0)
+
+
+# -- the defaults the node runs (issue 25) ---------------------------------------------------
+
+def test_the_node_declares_the_gate_defaults():
+    """The can_bridge's declared pump.* defaults give exactly the gate's default config."""
+    from clutch_ros.nodes.can_bridge_params import PARAMS, gate_config
+
+    declared = {spec.name: spec.default for spec in PARAMS}
+    assert gate_config(declared) == DEFAULT
+    assert declared["pump.period"] == PUMP_PERIOD == DEFAULT.max_step_interval
+    assert declared["pump.rise_rate_limit"] == DEFAULT.rate_limit_up
+    assert declared["pump.watchdog_timeout"] == DEFAULT.watchdog_timeout
+    assert declared["pump.max_pressure"] == DEFAULT.max_pressure
+
+
+def test_defaults_step_ramps_within_the_rate_limit_and_stays_within_max(db):
+    """A 0 -> 100 bar step with the node's defaults: 40 bar at most, 400 bar/s, one cycle each."""
+    clock = FakeClock()
+    gate = make_gate(db, clock)
+    step = DEFAULT.rate_limit_up * PUMP_PERIOD  # 4 bar per 10 ms frame
+    command(gate, clock, 0.0)
+    previous, frames = 0.0, []
+    for k in range(30):  # commands every cycle, a stall of 5 cycles at k = 3
+        clock.t += 5 * PUMP_PERIOD if k == 3 else PUMP_PERIOD
+        out = command(gate, clock, 100 * BAR)
+        assert decoded(db, out)[0] <= DEFAULT.max_pressure
+        assert out.pressure - previous <= step + 100.0  # late or not (+ the resolution)
+        frames.append(out.pressure)
+        previous = out.pressure
+    assert frames[-1] == pytest.approx(DEFAULT.max_pressure)
+    assert frames.index(frames[-1]) >= DEFAULT.max_pressure / step - 1  # 10 frames of ramp

@@ -7,7 +7,7 @@ every PumpRequest frame (kernel receive times, the same for every socket on the 
 * Live parameters (rcl_interfaces SetParameters from a client) on a bridge decoding a foreign
   DBC through its signal map: ``pump.max_pressure`` 5 bar while 30 bar is commanded -> no
   PumpRequest above 5 bar after the response; ``pump.watchdog_timeout`` and
-  ``pump.rate_limit`` apply at once; out-of-range, inconsistent and read-only values are
+  ``pump.rise_rate_limit`` apply at once; out-of-range, inconsistent and read-only values are
   refused with a reason. A default (reliable) and a sensor-data subscriber both receive
   ``rig_state``, with the foreign frames' physical values. ``hardware_id`` names the bus.
 * Lifecycle (lifecycle_msgs ChangeState / GetState): no rig_state and no PumpRequest while
@@ -144,7 +144,7 @@ def test_live_parameters_qos_and_foreign_signal_map(tmp_path):
                 t_last = time.time()
                 h.spin_for(1.6)
                 # the rate limit, live: 10 bar/s -> 0 to 5 bar takes 0.5 s
-                assert _set(h, setter, "pump.rate_limit", 10 * BAR).successful
+                assert _set(h, setter, "pump.rise_rate_limit", 10 * BAR).successful
                 t_ramp = time.time()
                 command_for(1.0, 5 * BAR)
                 hardware = [s.hardware_id for a in diags for s in a.status

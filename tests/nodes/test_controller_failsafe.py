@@ -11,13 +11,15 @@ import time
 import pytest
 
 from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
+from clutch_ros.nodes.controller_params import PARAMS
 from tests.conftest import REPO
 from tests.nodes.rclpy_harness import Harness
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 PRESET = str(REPO / "params" / "flexiforce_8.yaml")
-ESTIMATE_TIMEOUT = 0.25  # [s] controller.estimate_timeout
+ESTIMATE_TIMEOUT = next(s.default for s in PARAMS  # [s]
+                        if s.name == "controller.estimate_timeout")
 
 
 def test_estimator_death_zeroes_pressure_and_restart_resumes(tmp_path):

@@ -136,3 +136,12 @@ def _play(h, params, state):
 
     h.node.create_timer(0.01, tick)
     return commands
+
+
+def test_declared_defaults_are_the_control_law_defaults():
+    """Each controller.* default is ControllerSettings' own (written once, model/control.py)."""
+    from clutch_ros.model.control import ControllerSettings
+    from clutch_ros.nodes.controller_params import PARAMS, controller_settings
+
+    declared = {spec.name: spec.default for spec in PARAMS}
+    assert controller_settings(declared) == ControllerSettings()
