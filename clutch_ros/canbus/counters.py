@@ -222,7 +222,9 @@ class PublishPacer:
     the cap leaves the pacer ``pending``: :meth:`flush`, called from a slow timer, publishes
     it once the cap allows, so the last state before the bus goes quiet is never withheld.
     ``trigger`` None: frames never publish and :meth:`flush` is the ``rate`` timer's
-    decision. Times are monotonic seconds passed by the caller; not thread-safe.
+    decision. Times [s] are passed by the caller, in the bus's time base (the frames'
+    timestamps), so a burst of frames read late is paced as the bus sent it; a time that
+    goes back (a new log, an adapter's clock reset) earns no tokens. Not thread-safe.
     """
 
     def __init__(self, rate: float, trigger: int | None, fallback=frozenset(),
@@ -257,7 +259,8 @@ class PublishPacer:
     def take(self, now: float) -> bool:
         """Return True (and use a token) when a publication is allowed at ``now``."""
         if self._last is not None:
-            self._tokens = min(self.burst, self._tokens + (now - self._last) * self.rate)
+            self._tokens = min(self.burst,
+                               self._tokens + max(0.0, now - self._last) * self.rate)
         self._last = now
         if self._tokens < 1.0:
             return False

@@ -134,7 +134,7 @@ def run(args) -> int:
         # The pump request rises no faster than PUMP_RISE however DDS bunches the commands:
         # faster rises trigger the pump's pressure kick (thesis 5.1.1).
         "can_bridge": ros_param_args({**can, "bridge.rate": args.rate,
-                                      "pump.rate_limit": PUMP_RISE}),
+                                      "pump.rise_rate_limit": PUMP_RISE}),
         "estimator": ["--params-file", str(est_file),
                       *ros_param_args({"adapt.enabled": not args.no_adapt})],
         "controller": ["--params-file", str(est_file), *ros_param_args(

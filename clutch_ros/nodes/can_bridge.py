@@ -310,7 +310,7 @@ class CanBridgeNode(LifecycleNode):
                 return
             if key == st.gate.codec.spec.key:  # ours never come back (echoes removed)
                 st.foreign_pump_requests += 1
-            self._publish_latest(st.pacer.on_frame, key)
+            self._publish_latest(st.pacer.on_frame, key, bus_time=True)
         except Exception as err:  # noqa: BLE001 - counted; the Notifier thread must live
             assembler.on_error(err)
 
@@ -332,16 +332,23 @@ class CanBridgeNode(LifecycleNode):
         except Exception as err:  # noqa: BLE001 - report, never crash the node
             self.get_logger().error(f"log replay stopped: {err}")
 
-    def _publish_latest(self, decide, *args) -> None:
+    def _publish_latest(self, decide, *args, bus_time: bool = False) -> None:
         """Publish the latest signals if ``decide(*args, now)`` (the pacer) and they are new.
 
+        The pacer runs on the bus's time base, as ``stale_mask`` does: ``now`` is the newest
+        frame's bus time for a frame (``bus_time``), the wall clock mapped onto the bus for
+        the timer. A bridge that falls behind (a busy PC) and then reads a backlog of frames
+        in a burst therefore still publishes one sample per trigger frame, each with its
+        trigger's stamp; paced by its own clock it held most of them back as "too fast".
         Runs on the Notifier thread (frames) and the executor (timer), hence the lock.
         """
         st = self.state
         with self._lock:
-            if not decide(*args, time.monotonic()):
-                return
             newest = st.assembler.newest_time
+            now = newest if bus_time and newest is not None else \
+                time.time() - (st.offset or 0.0)
+            if not decide(*args, now):
+                return
             if newest is not None and st.offset is None:  # relative clocks -> the epoch
                 skew = time.time() - newest
                 st.offset = skew if abs(skew) > 3600.0 else 0.0

@@ -2,7 +2,9 @@
 
 :func:`bridge_status` returns (level, message, key/values). Levels: ERROR when the CAN
 link is down; WARN when no rig frame arrived since the previous report, required signal
-groups are stale, frames were dropped, decode or error frames were seen since the previous
+groups are stale, frames were dropped (a rolling-counter gap, or ``receive_drops``: frames
+the OS dropped before this node read them, counted by the kernel for udp_multicast), decode
+or error frames were seen since the previous
 report, another node sent PumpRequest frames (the bridge's own echo is removed by the bus,
 so any PumpRequest received means a second master on the pump), malformed datagrams were
 dropped, pressure commands were refused (stale, future, out of order, unstamped, foreign
@@ -92,6 +94,8 @@ def bridge_status(state: BridgeState, extra: dict):
                        "disconnects": status.disconnects, "send_failures": status.send_failures,
                        "own_echoes_dropped": status.own_echoes,
                        "malformed_frames": status.malformed_frames})
+        if status.receive_drops is not None:  # the OS's own count (udp_multicast on Linux)
+            values["receive_drops"] = status.receive_drops
         values.update({f"malformed_{k}": n
                        for k, n in sorted((status.malformed_by_reason or {}).items())})
         if str(status.state) != "up":
@@ -104,6 +108,7 @@ def bridge_status(state: BridgeState, extra: dict):
                         f"{extra.get('command_publishers', '')}")
     for key, what in (("decode_errors", "decode errors"), ("error_frames", "error frames"),
                       ("malformed_frames", "malformed frames dropped"),
+                      ("receive_drops", "frames dropped by the OS before this node read them"),
                       ("pump_refused_commands", "refused pressure commands"),
                       ("dropped_frames", "dropped frames"), ("watchdog_trips", "watchdog trips"),
                       ("foreign_pump_requests", "PumpRequest frames from another node")):

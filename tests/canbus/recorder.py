@@ -17,6 +17,7 @@ import can
 import msgpack
 
 from clutch_ros.canbus.bus import BusConfig, open_bus
+from clutch_ros.canbus.udp import malformed_reason
 
 
 def private_group() -> tuple[str, int]:
@@ -88,6 +89,8 @@ class BusRecorder:
         self.bus = open_bus(BusConfig(interface="udp_multicast", channel=group, fd=True,
                                       extra={"port": port}))
         self.frames: list[can.Message] = []
+        #: datagrams received that were no CAN frame
+        self.malformed = 0
         self._by_id: dict[int, list[can.Message]] = {}  # 11-bit data frames by identifier
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -95,7 +98,13 @@ class BusRecorder:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            msg = self.bus.recv(0.05)
+            try:
+                msg = self.bus.recv(0.05)
+            except can.CanOperationError as err:
+                if malformed_reason(err) is None:
+                    raise
+                self.malformed += 1  # a datagram that is no CAN frame (a hostile sender)
+                continue
             if msg is not None:
                 self.frames.append(msg)
                 if not (msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id):

@@ -232,6 +232,21 @@ def test_socketcan_error_classes_and_listener_errors(db):
     assert plain.counters().listener_errors == 1
 
 
+def test_publish_pacer_paces_bus_time_and_a_clock_going_back_earns_nothing():
+    """The bridge passes the frames' bus times: a backlog read late is paced as it was sent."""
+    from clutch_ros.canbus.counters import PublishPacer
+
+    speed = 0x101
+    pacer = PublishPacer(100.0, speed, frozenset({speed}))
+    # 300 trigger frames sent every 10 ms, read in one burst: each one publishes
+    assert all(pacer.on_frame(speed, 100.0 + 0.01 * k) for k in range(300))
+    # a new log starts at bus time 5 s: the step back neither earns nor costs tokens
+    pacer = PublishPacer(100.0, speed, frozenset({speed}))
+    assert pacer.on_frame(speed, 10.0) and pacer.on_frame(speed, 10.5)  # one token left
+    assert pacer.on_frame(speed, 5.0)  # (was -500 tokens: silence for 5 s)
+    assert not pacer.on_frame(speed, 5.0) and pacer.on_frame(speed, 5.5)
+
+
 def test_publish_pacer_trigger_rate_cap_and_fallback():
     from clutch_ros.canbus.counters import PublishPacer
 

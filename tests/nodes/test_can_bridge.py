@@ -119,7 +119,10 @@ def _check_state_against_bus(state, frames, times, by_name) -> bool:
     temps, pump = latest["RigTemperatures"], latest["PumpStatus"]
     assert _close(state.actuating_pressure, fast["ActuatingPressure"], "ActuatingPressure")
     assert _close(state.measured_torque, fast["MeasuredTorque"], "MeasuredTorque")
-    assert state.has_measured_torque == bool(fast["MeasuredTorqueValid"])
+    # a valid measurement of a stale pressure/torque group (bit 0) is withheld by design;
+    # whether the group is stale is checked against the bus's own timing below
+    assert state.has_measured_torque == (bool(fast["MeasuredTorqueValid"])
+                                         and not state.stale_mask & 1)
     assert _close(state.input_speed, speed["InputShaftSpeed"], "InputShaftSpeed")
     assert _close(state.output_speed, speed["OutputShaftSpeed"], "OutputShaftSpeed")
     assert state.slip_speed == pytest.approx(state.input_speed - state.output_speed)
@@ -268,6 +271,19 @@ def _final_rig_speed(frames):
     return DB.make_message("RigSpeed", values, counter=counter), values
 
 
+def _wait_counted(h, diags, count: int, rate: float) -> None:
+    """Wait until the bridge's frames_total + receive_drops (the OS's drops) reach ``count``."""
+    def counted() -> int:
+        view = _diag(diags, "/can_bridge")
+        return int(view.get("frames_total", 0)) + int(view.get("receive_drops", 0))
+
+    try:
+        h.spin_until(lambda: counted() == count, 60.0, f"{count} frames counted")
+    except AssertionError as err:  # say where the count stopped
+        raise AssertionError(f"{err}; sent at {rate:.0f}/s; last /can_bridge status: "
+                             f"{_diag(diags, '/can_bridge')}") from None
+
+
 def test_fuzz_through_the_node_and_quiet_idle_bus(tmp_path):
     from clutch_msgs.msg import CanFrame, RigState
     from diagnostic_msgs.msg import DiagnosticArray
@@ -305,14 +321,13 @@ def test_fuzz_through_the_node_and_quiet_idle_bus(tmp_path):
                         if delay > 0:
                             time.sleep(delay)
                 rate = len(frames) / (time.perf_counter() - start)
+                # every frame read or counted as dropped by the OS (a starved bridge's full
+                # socket buffer: the kernel's own count), then the final frame into an
+                # emptied buffer, so it surely arrives
+                _wait_counted(h, diags, exp.frames_total, rate)
                 tx.send(final)
             total = exp.frames_total + 1
-            try:
-                h.spin_until(lambda: _diag(diags, "/can_bridge").get("frames_total")
-                             == str(total), 60.0, f"{total} frames counted")
-            except AssertionError as err:  # say where the count stopped
-                raise AssertionError(f"{err}; sent at {rate:.0f}/s; last /can_bridge status: "
-                                     f"{_diag(diags, '/can_bridge')}") from None
+            _wait_counted(h, diags, total, rate)
             h.spin_until(lambda: states and states[-1].input_speed == pytest.approx(
                 final_values["InputShaftSpeed"], abs=1e-3), 30.0, "the final RigState")
             h.spin_for(1.5)
@@ -320,7 +335,6 @@ def test_fuzz_through_the_node_and_quiet_idle_bus(tmp_path):
             assert bridge.alive()
     finally:
         bridge.stop()
-    assert rate > 3000.0
     expected = {"frames_total": total, "error_frames": exp.error_frames,
                 "remote_frames": exp.remote_frames, "fd_frames": exp.fd_frames,
                 "unknown_frames": exp.unknown_frames, "decoded_frames": exp.decoded_frames + 1,
@@ -328,7 +342,21 @@ def test_fuzz_through_the_node_and_quiet_idle_bus(tmp_path):
                 "counter_repeats": 0, "listener_errors": 0, "foreign_pump_requests": 0,
                 "decode_errors_dlc": exp.decode_errors["dlc"],
                 "decode_errors_checksum": exp.decode_errors["checksum"]}
-    assert {k: int(view.get(k, 0)) for k in expected} == expected
+    counted = {k: int(view.get(k, 0)) for k in expected}
+    drops = int(view["receive_drops"])
+    print(f"\nfuzz burst sent at {rate:.0f}/s; {drops} frames dropped by the OS")
+    if drops == 0:  # the bridge read every frame: each count exactly the oracle's
+        assert counted == expected
+    else:  # which frames the OS dropped is unknown: every count within the oracle's, and the
+        # counts still add up (a counter gap may now count as a dropped frame)
+        assert counted["frames_total"] + drops == total
+        for key in ("error_frames", "remote_frames", "fd_frames", "unknown_frames",
+                    "decoded_frames", "decode_errors", "decode_errors_dlc",
+                    "decode_errors_checksum"):
+            assert counted[key] <= expected[key], (key, counted, expected)
+        assert counted["error_frames"] + counted["remote_frames"] + counted["unknown_frames"] \
+            + counted["decoded_frames"] + counted["decode_errors"] == counted["frames_total"]
+        assert counted["listener_errors"] == counted["foreign_pump_requests"] == 0
     assert view["link_state"] == "up" and view["disconnects"] == "0"
     # finding 5: the status stays bounded (it held 7,107 key-values after such a burst)
     sizes = [len(s.values) for a in diags for s in a.status if s.name == "/can_bridge"]

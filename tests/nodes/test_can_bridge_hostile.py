@@ -18,6 +18,8 @@ import time
 import pytest
 
 from clutch_ros.canbus import PumpRequestCodec, RigDatabase
+from clutch_ros.nodes.can_bridge_params import PARAMS as BRIDGE_PARAMS
+from clutch_ros.nodes.stamps import stamp_to_sec
 from tests.canbus.recorder import (
     MALFORMED_DATAGRAMS,
     BusRecorder,
@@ -33,6 +35,8 @@ pytestmark = pytest.mark.ros
 CODEC = PumpRequestCodec(RigDatabase())
 WATCHDOG, PERIOD = 0.2, 0.01  # [s] pump.watchdog_timeout, pump.period
 WATCHDOG_TOLERANCE = 0.25  # [s] executor delay on a loaded 2-core machine
+#: [1/s] bridge.rate (its default, which the test runs): the cap on rig_state
+BRIDGE_RATE = next(p.default for p in BRIDGE_PARAMS if p.name == "bridge.rate")
 
 
 def _requests(rec, since=0.0):
@@ -45,27 +49,34 @@ def test_one_malformed_datagram_per_second_keeps_the_link_and_rig_state(tmp_path
     from clutch_msgs.msg import RigState
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from clutch_ros.nodes.qos import sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos
 
     group, port = private_group()
     logs = tmp_path / "logs"
     procs = [_node("rig_sim", bus_params(group, port), logs),
              _node("can_bridge", bus_params(group, port), logs)]
     window = 6.0  # [s]
+    trigger = RigDatabase().frame("RigSpeed").frame_id  # one rig_state per such frame
     try:
-        with Harness("malformed_test") as h, DatagramSender(group, port) as junk:
-            states = h.collect(RigState, "rig_state", sensor_qos())
+        with Harness("malformed_test") as h, DatagramSender(group, port) as junk, \
+                BusRecorder(group, port) as rec:
+            # reliable and deep: this test's own reader loses nothing on a busy machine
+            states = h.collect(RigState, "rig_state", reliable_qos(5000))
             diags = h.collect(DiagnosticArray, "/diagnostics", 50)
             h.spin_until(lambda: len(states) > 200, 90.0, "rig_state from the bridge")
-            n0, t0 = len(states), time.monotonic()
+            t0 = time.time()  # bus time (udp_multicast: the kernel's wall-clock stamps)
             h.spin_for(window)  # same-run baseline: a clean bus
-            clean = (len(states) - n0) / (time.monotonic() - t0)
-            n0, t0, sent = len(states), time.monotonic(), 0
-            while time.monotonic() - t0 < window:
+            t1, sent = time.time(), 0
+            while time.time() - t1 < window:
                 junk.send(MALFORMED_DATAGRAMS[sent % len(MALFORMED_DATAGRAMS)][1])
                 sent += 1
                 h.spin_for(1.0)
-            hostile = (len(states) - n0) / (time.monotonic() - t0)
+            t2 = time.time()
+            h.spin_for(1.0)  # the last samples of the window arrive
+            # published samples per trigger frame on the bus, in each window of bus time:
+            # independent of how fast a busy machine let the rig run
+            clean, hostile = (_per_trigger(states, rec.of(trigger), a, b)
+                              for a, b in ((t0, t1), (t1, t2)))
             h.spin_until(lambda: _diag(diags, "/can_bridge").get("malformed_frames")
                          == str(sent), 10.0, f"{sent} malformed frames counted")
             h.spin_for(1.2)
@@ -75,16 +86,34 @@ def test_one_malformed_datagram_per_second_keeps_the_link_and_rig_state(tmp_path
     finally:
         for p in procs:
             p.stop()
-    print(f"\nmalformed datagrams: {sent} in {window:.0f} s; rig_state {hostile:.1f} Hz "
-          f"(clean bus, same run: {clean:.1f} Hz); disconnects {view['disconnects']}")
+    print(f"\nmalformed datagrams: {sent} in {window:.0f} s; rig_state per sample the bus allowed "
+          f"{hostile:.3f} (clean bus, same run: {clean:.3f}); disconnects {view['disconnects']}")
     assert view["link_state"] == "up" and view["disconnects"] == "0" and view["connects"] == "1"
-    assert int(view["malformed_frames"]) == sent
+    assert int(view["malformed_frames"]) == sent == rec.malformed  # the bus carried that many
     assert sum(int(view.get(f"malformed_{r}", 0)) for r in
                ("not_msgpack", "invalid_frame", "not_a_frame")) == sent
     assert 2 not in levels  # never an ERROR (the link never went down)
+    assert clean > 0.9  # the baseline itself: (nearly) every sample the bus allowed
     assert hostile >= 0.9 * clean, (hostile, clean)  # was 29 Hz against 200 before the fix
     log = procs[1].log_path.read_text()
     assert log.count("malformed") <= 2, log  # rate-limited, not one line per datagram
+
+
+def _per_trigger(states, triggers, start: float, end: float) -> float:
+    """rig_state samples stamped in [start, end) per sample the bus's trigger frames allowed.
+
+    The bridge publishes on each trigger frame (RigSpeed), capped at ``bridge.rate`` by its
+    pacer on bus time; the frames the bus really carried, replayed through that cap, give
+    what it should have published in the window, however fast a busy machine let the rig run.
+    """
+    from clutch_ros.canbus.counters import PublishPacer
+
+    pacer = PublishPacer(BRIDGE_RATE, 0)
+    allowed = [f.timestamp for f in triggers if pacer.on_frame(0, f.timestamp)]
+    expected = sum(start <= t < end for t in allowed)
+    published = sum(start <= stamp_to_sec(s.header.stamp) < end for s in states)
+    assert expected > 100, expected  # the rig ran in that window
+    return published / expected
 
 
 def test_10_khz_commands_give_at_most_two_frames_per_period(tmp_path):
