@@ -57,7 +57,8 @@ from pathlib import Path
 import numpy as np
 
 from clutch_ros.model import kernel_box
-from clutch_ros.model.errors import InputError, ModelError
+from clutch_ros.model.errors import InputError, KernelUnavailableError
+from clutch_ros.model.laws import LawTable, law_info
 from clutch_ros.model.slip import lowpass_series as _lowpass_numpy
 
 __all__ = ["ENGINES", "KernelUnavailableError", "LAW_CODES", "OUTPUT_COLUMNS", "available",
@@ -74,21 +75,16 @@ OUTPUT_COLUMNS = ("torque", "reference_torque", "mu", "front_pressure", "rear_pr
 #: accepted values of simulate()'s ``engine`` argument
 ENGINES = ("auto", "kernel", "numpy")
 
-_NONE, _LINEAR, _VISCOUS, _BOX = 0, 1, 2, 3
-_COULOMB, _FF_T, _FF_V = kernel_box.COULOMB, kernel_box.FF_T, kernel_box.FF_V
+_VISCOUS, _BOX = kernel_box.VISCOUS, kernel_box.BOX
 # replaced by the compiled functions in _compiled()
 _box_apply, _mat_vec = kernel_box._box_apply, kernel_box.mat_vec
-#: law name -> (kind, box variant) of the compiled loop
-LAW_CODES = {"none": (_NONE, 0), "ff_t_printed": (_LINEAR, 0), "ff_v_printed": (_VISCOUS, 0),
-             "coulomb": (_BOX, _COULOMB), "ff_t": (_BOX, _FF_T), "ff_v": (_BOX, _FF_V)}
+#: law name -> (kind, box variant) of the compiled loop (a live view of the registry's
+#: :attr:`~clutch_ros.model.laws.SplineLawInfo.kernel`; laws without code are left out)
+LAW_CODES = LawTable(lambda info: info.kernel, lambda info: info.kernel is not None)
 
 #: loop: the compiled loop once numba is imported; reason: why the kernel cannot be used
 _state: dict = {"loop": None, "reason": None, "numba_error": None}
 _LOCK = threading.RLock()
-
-
-class KernelUnavailableError(ModelError):
-    """``engine="kernel"`` was asked for but the compiled kernel cannot run (says why)."""
 
 
 def _cache_dir() -> str:
@@ -369,14 +365,12 @@ def lowpass_series(t, u, time_constant: float, engine: str = "auto") -> np.ndarr
     return out
 
 
-def _box_matrices(law_name, table):
+def _box_matrices(law, kind, table):
     """Stacked per-dt matrices of the box laws: stick and normal transposed, G, Gᵀ, H."""
-    if law_name not in ("coulomb", "ff_t", "ff_v"):
+    if kind != _BOX:
         empty = np.zeros((len(table), 1, 1))
         return empty, empty, empty, empty, empty
-    prefix = "coulomb" if law_name == "coulomb" else "passive"
-    stick, normal, g, h = ([getattr(e, f"{prefix}_{name}") for e in table]
-                           for name in ("stick", "normal", "g", "h"))
+    stick, normal, g, h = zip(*(law.box_matrices(e) for e in table))
     return (np.ascontiguousarray(np.transpose(stick, (0, 2, 1))),
             np.ascontiguousarray(np.transpose(normal, (0, 2, 1))),
             np.ascontiguousarray(g), np.ascontiguousarray(np.transpose(g, (0, 2, 1))),
@@ -389,7 +383,7 @@ def _run(model, table, inverse, dts, press, omega, temp, sign, states, forces, t
     if check_engine(engine) == "numpy":
         return False
     law = model.law
-    codes = LAW_CODES.get(law.name)
+    codes = law_info(law.name).kernel
     loop = _compiled()
     if loop is None or codes is None:
         why = _state["reason"] if loop is None else f"no compiled code for law {law.name!r}"
@@ -406,7 +400,7 @@ def _run(model, table, inverse, dts, press, omega, temp, sign, states, forces, t
                    fr_p.film_recovery_time], dtype=float)
     th = np.array([th_p.heat_capacity, th_p.conductance, th_p.oil_temperature], dtype=float)
     mts = np.ascontiguousarray(np.transpose([e.M for e in table], (0, 2, 1)))
-    kts, nts, gmats, gts, hmats = _box_matrices(law.name, table)
+    kts, nts, gmats, gts, hmats = _box_matrices(law, codes[0], table)
     idx = np.array([lay.n_state, lay.i_front, lay.i_force, lay.i_torque, lay.law_states.start,
                     lay.forces.start, lay.lamella_count, lay.head], dtype=np.int64)
     consts = np.array([model._area, model._c2k, model._k_na, getattr(law, "gain", 0.0),

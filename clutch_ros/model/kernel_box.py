@@ -14,9 +14,13 @@ functions in place (they stay plain Python, and correct, without numba).
 
 from __future__ import annotations
 
-__all__ = ["BOX_FUNCTIONS", "COULOMB", "FF_T", "FF_V", "SCRATCH_ROWS", "SIGMA", "STUCK",
-           "mat_vec"]
+__all__ = ["BOX", "BOX_FUNCTIONS", "COULOMB", "FF_T", "FF_V", "LINEAR", "NONE", "SCRATCH_ROWS",
+           "SIGMA", "STUCK", "VISCOUS", "mat_vec"]
 
+#: kinds of law of the compiled loop (the registry, :mod:`~.laws`, gives each law its code):
+#: no force, linear (T enters the work vector), held viscous force, box problem
+NONE, LINEAR, VISCOUS, BOX = 0, 1, 2, 3
+#: variants of the box problem (:func:`_box_apply`)
 COULOMB, FF_T, FF_V = 0, 1, 2
 _COULOMB, _FF_T, _FF_V = COULOMB, FF_T, FF_V
 _MAX_ACTIVE_SET_ITERATIONS = 64
