@@ -202,15 +202,19 @@ def _box_solve(gm, gt, hm, e, n, fs, bb, ib, gss):
         fs[SIGMA, i] = fs[_TSIGMA, i]
 
 
-def _box_apply(variant, work, head, s0, f0, nlam, torque, scale, gain, kts, nts, gm, gt, hm,
-               e, fs, bb, ib, gss):
+def _box_apply(variant, work, lay, torque, scale, gain, box, e, scratch):
     """Held spline forces of the box laws (coulomb, passive ff_t / ff_v) into ``work``.
 
-    ``kts``, ``nts``: per dt entry ``e`` the stick-force and normal-force matrices
-    transposed (head, N) and (head, N + 1), so the products run down contiguous rows (same
-    sums, same order, :func:`mat_vec`); ``gm``, ``gt``, ``hm``: G, Gᵀ and H. ``work`` is the
-    work vector as a (1, size) row. The warm set is ``bb[STUCK]``, ``fs[SIGMA]``.
+    ``lay`` = (head, s0, f0, nlam): the work vector's head length, first law state, first
+    force, lamella count. ``box`` = (kts, nts, gm, gt, hm): per dt entry ``e`` the stick-force
+    and normal-force matrices transposed (head, N) and (head, N + 1), so the products run
+    down contiguous rows (same sums, same order, :func:`mat_vec`), then G, Gᵀ and H.
+    ``scratch`` = (fs, bb, ib, gss) (module docstring). ``work`` is the work vector as a
+    (1, size) row. The warm set is ``bb[STUCK]``, ``fs[SIGMA]``.
     """
+    head, s0, f0, nlam = lay
+    kts, nts, gm, gt, hm = box
+    fs, bb, ib, gss = scratch
     anyd = False
     for i in range(nlam):
         if variant == _FF_T:
