@@ -68,7 +68,7 @@ __all__ = ["AdaptationSettings", "AdaptationStatus", "AdaptiveEstimate", "Adapti
 
 #: Spline laws whose ``spline.gain`` the adaptation may estimate (a live view of the
 #: registry's :attr:`~clutch_ros.model.laws.SplineLawInfo.adapts_gain`).
-GAIN_LAWS = LawNames(lambda info: info.adapts_gain)
+GAIN_LAWS = LawNames("adapts_gain")
 
 
 def fork_estimator(estimator: ClutchEstimator, params=None, **kwargs) -> ClutchEstimator:

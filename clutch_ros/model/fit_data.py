@@ -78,7 +78,7 @@ __all__ = [
 #: Default segment budget per law [decimated samples per residual evaluation]: a coulomb
 #: step (stick/slip active set) costs ~50 µs against ~3 µs for the others.
 #: A live view of the registry's :attr:`~clutch_ros.model.laws.SplineLawInfo.sample_budget`.
-SAMPLE_BUDGET = LawTable(lambda info: info.sample_budget)
+SAMPLE_BUDGET = LawTable("sample_budget")
 
 
 # -- inputs and options ---------------------------------------------------------------------

@@ -100,7 +100,7 @@ __all__ = [
 
 #: Parameters fitted per spline law (dotted keys), before ``fixed``: a live view of the
 #: registry's :attr:`~clutch_ros.model.laws.SplineLawInfo.free_parameters`.
-FREE_PARAMETERS = LawTable(lambda info: info.free_parameters)
+FREE_PARAMETERS = LawTable("free_parameters")
 
 #: key -> (log parameterisation, linear scale)
 _TRANSFORM = {

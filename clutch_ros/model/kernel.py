@@ -82,7 +82,7 @@ _VISCOUS, _BOX = kernel_box.VISCOUS, kernel_box.BOX
 _box_apply, _mat_vec = kernel_box._box_apply, kernel_box.mat_vec
 #: law name -> (kind, box variant) of the compiled loop (a live view of the registry's
 #: :attr:`~clutch_ros.model.laws.SplineLawInfo.kernel`; laws without code are left out)
-LAW_CODES = LawTable(lambda info: info.kernel, lambda info: info.kernel is not None)
+LAW_CODES = LawTable("kernel", where="kernel")
 
 #: One series of steps: the discretisation entries (``model.discretisation``), the entry of
 #: each step (n - 1,), the steps [s] (n - 1,), pressure [Pa], slip [rad/s], temperature

@@ -24,6 +24,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from operator import attrgetter
 
 from clutch_ros.model import kernel_box
 from clutch_ros.model.errors import UnknownLawError
@@ -105,8 +106,14 @@ def law_info(name: str) -> SplineLawInfo:
     return info
 
 
-def law_names(where: Callable[[SplineLawInfo], bool] | None = None) -> tuple[str, ...]:
-    """Return the registered law names (in registration order), those ``where`` accepts."""
+def law_names(where: str | Callable[[SplineLawInfo], object] | None = None) -> tuple[str, ...]:
+    """Return the registered law names (in registration order) that ``where`` selects.
+
+    ``where``: None (all), a field name of :class:`SplineLawInfo` (the laws where it is
+    truthy: ``"passive"``, ``"adapts_gain"``, ``"kernel"``) or a predicate on the info.
+    """
+    if isinstance(where, str):
+        where = attrgetter(where)
     return tuple(n for n, info in _REGISTRY.items() if where is None or where(info))
 
 
@@ -116,12 +123,13 @@ def make_spline_law(params):
 
 
 class LawNames(Sequence):
-    """A live, read-only tuple of the registered law names that ``where`` accepts.
+    """A live, read-only tuple of the registered law names whose field ``where`` is truthy.
 
     Compares equal to a tuple of the same names; a law registered later appears in it.
+    ``where``: a field name of :class:`SplineLawInfo` (None: every law). Picklable.
     """
 
-    def __init__(self, where: Callable[[SplineLawInfo], bool] | None = None):
+    def __init__(self, where: str | None = None):
         self._where = where
 
     def _names(self) -> tuple[str, ...]:
@@ -134,8 +142,7 @@ class LawNames(Sequence):
         return len(self._names())
 
     def __contains__(self, name) -> bool:
-        info = _REGISTRY.get(name) if isinstance(name, str) else None
-        return info is not None and (self._where is None or self._where(info))
+        return isinstance(name, str) and name in self._names()
 
     def __eq__(self, other) -> bool:
         if isinstance(other, (LawNames, tuple, list)):
@@ -150,18 +157,19 @@ class LawNames(Sequence):
 
 
 class LawTable(Mapping):
-    """A live, read-only ``{law name: field}`` mapping over the registry (one field per law)."""
+    """A live, read-only ``{law name: info.<field>}`` mapping over the registry.
 
-    def __init__(self, value: Callable[[SplineLawInfo], object],
-                 where: Callable[[SplineLawInfo], bool] | None = None):
-        self._value = value
+    ``where``: as for :class:`LawNames` (the laws whose field ``where`` is truthy). Picklable.
+    """
+
+    def __init__(self, field: str, where: str | None = None):
+        self._field = field
         self._where = where
 
     def __getitem__(self, name):
-        info = _REGISTRY.get(name) if isinstance(name, str) else None
-        if info is None or (self._where is not None and not self._where(info)):
+        if not isinstance(name, str) or name not in law_names(self._where):
             raise KeyError(name)
-        return self._value(info)
+        return getattr(_REGISTRY[name], self._field)
 
     def __iter__(self):
         return iter(law_names(self._where))

@@ -76,7 +76,7 @@ NAMESPACES = {"clutch": "pack", "friction": "friction", "spline": "spline", "sli
 #: thesis only, never a default). A live view: a law registered later is in it.
 SPLINE_LAWS = LawNames()
 #: The laws that never do positive work on a lamella (live view of the registry).
-PASSIVE_LAWS = LawNames(lambda info: info.passive)
+PASSIVE_LAWS = LawNames("passive")
 
 
 @dataclass(frozen=True)
