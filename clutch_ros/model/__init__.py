@@ -9,7 +9,7 @@ documents its quantities. Main entry points:
 - :func:`slip_speed_from_wheels` (Eq. 4), :func:`slip_speed_from_shafts`,
   :func:`base_speed`, :class:`SlipFilter`.
 - :class:`PackModel` (Eqs. 11-27, exact ZOH) with spline laws from :func:`make_spline_law`
-  (``none``, ``ff_t`` Eq. 29, ``ff_v`` Eq. 30, ``coulomb``); :func:`simulate` for series.
+  (registered in :mod:`~clutch_ros.model.laws`); :func:`simulate` for series.
 - :func:`pressure_for_torque` / :func:`solve_pressure`: the inverse.
 - :class:`ClutchEstimator` / :func:`estimate_batch`: the per-sample estimator.
 - :mod:`~clutch_ros.model.metrics` and :mod:`~clutch_ros.model.sequences` (Tables 3-4).
@@ -71,6 +71,9 @@ _MODULES = {
         "PressureSolution", "pressure_for_torque", "pressure_for_torque_array",
         "solve_pressure",
     ),
+    "laws": (
+        "SplineLawInfo", "law_info", "law_names", "make_spline_law",
+    ),
     "metrics": (
         "CrossCorrelation", "accuracy_summary", "cross_correlation", "hysteresis_width",
         "longest_run", "overshoot", "request_accuracy", "rmse", "torque_accuracy",
@@ -96,9 +99,6 @@ _MODULES = {
     "spline": (
         "SplineLaw",
     ),
-    "spline_passive": (
-        "make_spline_law",
-    ),
     "statespace": (
         "build_state_space", "static_gain", "zoh_discretize",
     ),
@@ -117,7 +117,8 @@ __all__ = [
     "slip_speed_from_wheels", "slip_speed_from_shafts", "base_speed", "SlipFilter",
     "lowpass_series",
     # pack
-    "PackModel", "PackSample", "PackState", "SplineLaw", "make_spline_law",
+    "PackModel", "PackSample", "PackState", "SplineLaw", "make_spline_law", "SplineLawInfo",
+    "law_info", "law_names",
     "build_state_space", "static_gain", "zoh_discretize", "simulate", "SimulationResult",
     # inverse
     "pressure_for_torque", "pressure_for_torque_array", "solve_pressure", "PressureSolution",

@@ -61,12 +61,14 @@ import numpy as np
 from clutch_ros.model.errors import ModelError
 from clutch_ros.model.estimator import ClutchEstimator, Estimate
 from clutch_ros.model.inverse import capacity_scalar
+from clutch_ros.model.laws import LawNames
 
 __all__ = ["AdaptationSettings", "AdaptationStatus", "AdaptiveEstimate", "AdaptiveEstimator",
            "ParameterFilter", "GAIN_LAWS", "fork_estimator", "scaled_params"]
 
-#: Spline laws whose ``spline.gain`` the adaptation may estimate.
-GAIN_LAWS = ("ff_t", "ff_v")
+#: Spline laws whose ``spline.gain`` the adaptation may estimate (a live view of the
+#: registry's :attr:`~clutch_ros.model.laws.SplineLawInfo.adapts_gain`).
+GAIN_LAWS = LawNames("adapts_gain")
 
 
 def fork_estimator(estimator: ClutchEstimator, params=None, **kwargs) -> ClutchEstimator:

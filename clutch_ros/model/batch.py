@@ -82,18 +82,17 @@ _REJECTED = {1: NonFiniteSample, 2: DuplicateSample, 3: OutOfOrderSample}
 
 
 def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_speed,
-                   measured_torque=None, *, max_gap_s: float = 1.0,
-                   accuracy_min_torque: float = 1.0, overshoot_limit: float = 1.1,
-                   undershoot_limit: float = 0.9, on_reject: str = "raise",
-                   model: PackModel | None = None, engine: str = "auto",
-                   per_lamella: bool = True) -> EstimateBatch:
+                   measured_torque=None, **options) -> EstimateBatch:
     """Estimate a whole series; identical to looping ``ClutchEstimator.update()``.
 
     Inputs broadcast to ``t``'s shape (1-D stamps [s]); ``measured_torque`` None means no
-    measurement. ``on_reject``: ``"raise"`` raises the first sample's SampleRejected, like an
-    update loop that does not catch; ``"skip"`` leaves NaN rows (``accepted`` False), like one
-    that catches and continues. ``engine``: the model loop, ``"auto"`` | ``"kernel"`` |
-    ``"numpy"`` (see :func:`~clutch_ros.model.simulate.simulate`). ``per_lamella`` False:
+    measurement. ``options``: the keyword arguments of :class:`BatchEstimator`
+    (``max_gap_s``, ``accuracy_min_torque``, ``overshoot_limit``, ``undershoot_limit``,
+    ``on_reject``, ``model``, ``engine``, ``per_lamella``). ``on_reject``: ``"raise"`` (the
+    default) raises the first sample's SampleRejected, like an update loop that does not
+    catch; ``"skip"`` leaves NaN rows (``accepted`` False), like one that catches and
+    continues. ``engine``: the model loop, ``"auto"`` | ``"kernel"`` | ``"numpy"`` (see
+    :func:`~clutch_ros.model.simulate.simulate`). ``per_lamella`` False:
     ``lamella_normal_force`` and ``spline_friction_force`` are None (two (n, N) arrays fewer
     for a long series whose per-lamella forces are not used; ``spline_correction`` is still
     computed). One :meth:`BatchEstimator.feed` of the whole series.
@@ -101,11 +100,7 @@ def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_spee
     t = np.ascontiguousarray(t, dtype=float)
     if t.ndim != 1:
         raise InputError(f"t must be 1-D, got shape {t.shape}")
-    stream = BatchEstimator(params, t.size, max_gap_s=max_gap_s,
-                            accuracy_min_torque=accuracy_min_torque,
-                            overshoot_limit=overshoot_limit, undershoot_limit=undershoot_limit,
-                            on_reject=on_reject, model=model, engine=engine,
-                            per_lamella=per_lamella)
+    stream = BatchEstimator(params, t.size, **options)
     stream.feed(t, actuating_pressure, lamella_temperature, slip_speed,
                 np.nan if measured_torque is None else measured_torque)
     return stream.result()
@@ -279,9 +274,9 @@ class BatchEstimator:
         omega_f = kernel.lowpass_series(ts, omegas, params.slip.filter_time_constant,
                                         self.engine)
         out[_SLIP, offset:offset + count] = omega_f
-        if not simulate_columns(params, ts, ps, omega_f, temps, out, model=self.model,
-                                normal=nrm, forces=spl, offset=offset, engine=self.engine,
-                                reset=not cont):
+        if not simulate_columns(params, ts, ps, omega_f, temps,
+                                kernel.Columns(out, nrm, spl, offset), model=self.model,
+                                engine=self.engine, reset=not cont):
             sim = simulate(params, ts, ps, omega_f, temps, model=self.model,
                            engine=self.engine, reset=not cont)
             dest = out[:, offset:offset + count]

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from clutch_ros.model.errors import ModelError
+from clutch_ros.model.errors import CalibrationError
 
 __all__ = [
     "CalibrationError",
@@ -53,10 +53,6 @@ __all__ = [
 
 #: Calibration methods: "same_force" (Eqs. 6–9) and "same_sensor" (Eq. 10).
 METHODS = ("same_force", "same_sensor")
-
-
-class CalibrationError(ModelError):
-    """The FlexiForce data cannot determine the calibration (names the sensor or cause)."""
 
 
 @dataclass(frozen=True)

@@ -40,12 +40,18 @@ step 2; :class:`Segment` is the decimated piece of a run the fit simulates.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from clutch_ros.model.errors import ModelError
+from clutch_ros.model.errors import (  # re-exported: defined in errors.py
+    IdentificationError,
+    NoExcitationError,
+    NoMeasuredTorqueError,
+    TooShortError,
+    UnidentifiableParameterError,
+)
+from clutch_ros.model.laws import LawTable
 from clutch_ros.model.params import ClutchParams
 from clutch_ros.model.slip import lowpass_series
 from clutch_ros.model.statespace import build_state_space
@@ -71,36 +77,8 @@ __all__ = [
 
 #: Default segment budget per law [decimated samples per residual evaluation]: a coulomb
 #: step (stick/slip active set) costs ~50 µs against ~3 µs for the others.
-SAMPLE_BUDGET = {"none": 20_000, "ff_t": 5_000, "ff_v": 5_000, "coulomb": 4_000,
-                 "ff_t_printed": 20_000, "ff_v_printed": 15_000}
-
-
-# -- errors ---------------------------------------------------------------------------------
-class IdentificationError(ModelError):
-    """The data cannot identify the model (the message says why and what to change).
-
-    ``keys``: the dotted parameter keys concerned (may be empty).
-    """
-
-    def __init__(self, message: str, keys: Sequence[str] = ()):
-        super().__init__(message)
-        self.keys = tuple(keys)
-
-
-class NoMeasuredTorqueError(IdentificationError):
-    """No run carries a measured torque to fit against."""
-
-
-class TooShortError(IdentificationError):
-    """Too little data with a measured torque (duration or samples per parameter)."""
-
-
-class NoExcitationError(IdentificationError):
-    """The actuating pressure (the model's input) hardly varies."""
-
-
-class UnidentifiableParameterError(IdentificationError):
-    """A parameter (``keys``) has no effect or is confounded with others on these data."""
+#: A live view of the registry's :attr:`~clutch_ros.model.laws.SplineLawInfo.sample_budget`.
+SAMPLE_BUDGET = LawTable("sample_budget")
 
 
 # -- inputs and options ---------------------------------------------------------------------

@@ -84,6 +84,7 @@ from clutch_ros.model.fit_data import (
     select_segments,
 )
 from clutch_ros.model.friction import reference_torque
+from clutch_ros.model.laws import LawTable, law_info
 from clutch_ros.model.metrics import rmse
 from clutch_ros.model.pack import PackModel
 from clutch_ros.model.params import PARAMETER_SPECS, SPLINE_LAWS, TABLE7, ClutchParams
@@ -97,20 +98,9 @@ __all__ = [
     "FitResult", "RunEvaluation", "FREE_PARAMETERS", "fit", "evaluate", "initial_params",
 ]
 
-#: Parameters fitted per spline law (dotted keys), before ``fixed``.
-FREE_PARAMETERS: dict[str, tuple[str, ...]] = {
-    "none": ("friction.mu_ref", "friction.temperature_slope", "friction.pressure_loss_at_ref",
-             "clutch.lamella_damping"),
-    "ff_t": ("friction.mu_ref", "friction.temperature_slope", "friction.pressure_loss_at_ref",
-             "spline.gain", "spline.time_constant", "clutch.lamella_damping"),
-    "ff_v": ("friction.mu_ref", "friction.temperature_slope", "friction.pressure_loss_at_ref",
-             "spline.gain", "spline.time_constant", "clutch.lamella_damping"),
-    "coulomb": ("friction.mu_ref", "friction.temperature_slope",
-                "friction.pressure_loss_at_ref", "spline.friction_coefficient",
-                "clutch.lamella_damping"),
-}
-FREE_PARAMETERS["ff_t_printed"] = FREE_PARAMETERS["ff_t"]
-FREE_PARAMETERS["ff_v_printed"] = FREE_PARAMETERS["ff_v"]
+#: Parameters fitted per spline law (dotted keys), before ``fixed``: a live view of the
+#: registry's :attr:`~clutch_ros.model.laws.SplineLawInfo.free_parameters`.
+FREE_PARAMETERS = LawTable("free_parameters")
 
 #: key -> (log parameterisation, linear scale)
 _TRANSFORM = {
@@ -205,7 +195,7 @@ class FitResult:
 
 def _unit(key: str, law: str) -> str:
     if key == "spline.gain":
-        return "1/m" if law.startswith("ff_t") else "s/m^2"
+        return law_info(law).gain_unit or PARAMETER_SPECS[key].unit
     return PARAMETER_SPECS[key].unit
 
 
@@ -219,17 +209,20 @@ def initial_params(base: ClutchParams, law: str) -> ClutchParams:
     """
     if law not in SPLINE_LAWS:
         raise IdentificationError(f"unknown spline law {law!r} (one of {', '.join(SPLINE_LAWS)})")
+    info = law_info(law)
     params = base
-    if law in ("ff_t", "ff_v", "ff_t_printed", "ff_v_printed"):
+    if info.table7 is not None:
         if base.spline.law != law or not base.spline.gain > 0.0:
-            entry = TABLE7[(law[:4], 10)]
+            entry = TABLE7[(info.table7, 10)]
             params = params.replace(**{"spline.law": law, "spline.gain": entry.gain_si,
                                        "spline.time_constant": entry.time_constant})
     else:
         params = params.replace(**{"spline.law": law})
     changes = {}
-    if law == "coulomb" and not params.spline.friction_coefficient > 0.0:
-        changes["spline.friction_coefficient"] = 0.05
+    flat = params.to_flat()
+    for key, value in info.start:  # coulomb: a positive spline.friction_coefficient
+        if not flat[key] > 0.0:
+            changes[key] = value
     if not params.pack.lamella_damping > 0.0:
         changes["clutch.lamella_damping"] = 0.1 * params.pack.lamella_stiffness
     return params.updated(changes) if changes else params

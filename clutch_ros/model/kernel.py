@@ -52,16 +52,19 @@ import logging
 import math
 import os
 import threading
+from collections import namedtuple
 from pathlib import Path
 
 import numpy as np
 
 from clutch_ros.model import kernel_box
-from clutch_ros.model.errors import InputError, ModelError
+from clutch_ros.model.errors import InputError, KernelUnavailableError
+from clutch_ros.model.laws import LawTable, law_info
 from clutch_ros.model.slip import lowpass_series as _lowpass_numpy
 
-__all__ = ["ENGINES", "KernelUnavailableError", "LAW_CODES", "OUTPUT_COLUMNS", "available",
-           "check_engine", "lowpass_series", "run_columns", "run_loop", "unavailable_reason"]
+__all__ = ["ENGINES", "Columns", "History", "KernelUnavailableError", "LAW_CODES",
+           "OUTPUT_COLUMNS", "Series", "available", "check_engine", "lowpass_series",
+           "run_columns", "run_loop", "unavailable_reason"]
 
 _log = logging.getLogger(__name__)
 
@@ -74,21 +77,37 @@ OUTPUT_COLUMNS = ("torque", "reference_torque", "mu", "front_pressure", "rear_pr
 #: accepted values of simulate()'s ``engine`` argument
 ENGINES = ("auto", "kernel", "numpy")
 
-_NONE, _LINEAR, _VISCOUS, _BOX = 0, 1, 2, 3
-_COULOMB, _FF_T, _FF_V = kernel_box.COULOMB, kernel_box.FF_T, kernel_box.FF_V
+_VISCOUS, _BOX = kernel_box.VISCOUS, kernel_box.BOX
 # replaced by the compiled functions in _compiled()
 _box_apply, _mat_vec = kernel_box._box_apply, kernel_box.mat_vec
-#: law name -> (kind, box variant) of the compiled loop
-LAW_CODES = {"none": (_NONE, 0), "ff_t_printed": (_LINEAR, 0), "ff_v_printed": (_VISCOUS, 0),
-             "coulomb": (_BOX, _COULOMB), "ff_t": (_BOX, _FF_T), "ff_v": (_BOX, _FF_V)}
+#: law name -> (kind, box variant) of the compiled loop (a live view of the registry's
+#: :attr:`~clutch_ros.model.laws.SplineLawInfo.kernel`; laws without code are left out)
+LAW_CODES = LawTable("kernel", where="kernel")
+
+#: One series of steps: the discretisation entries (``model.discretisation``), the entry of
+#: each step (n - 1,), the steps [s] (n - 1,), pressure [Pa], slip [rad/s], temperature
+#: [°C] (NaN: not measured) and the torque sign (n,; size 0: computed in the loop).
+Series = namedtuple("Series", "table inverse dts press omega temp sign")
+#: :func:`~clutch_ros.model.simulate.simulate`'s state history, rows 1..n-1 written: states
+#: (n, n_state), held spline forces (n, N) [N], temperature [°C] and film (n,).
+History = namedtuple("History", "states forces temps films")
+#: :func:`run_columns`' outputs: ``outs`` (9, offset + n) (:data:`OUTPUT_COLUMNS`), and
+#: optionally ``normal`` / ``forces`` (offset + n, N) [N], written from column/row ``offset``.
+Columns = namedtuple("Columns", "outs normal forces offset", defaults=(None, None, 0))
+
+# The compiled loop's records (numba types namedtuples of arrays and scalars like tuples):
+# per-dt matrices (ZOH transposed, entry per step, dts, the box laws' matrices); inputs;
+# the model (work vector, its indices, constants, friction and thermal parameters, law
+# codes, warm active set); what the loop writes (arrays with fewer rows than samples are not
+# written, see _loop).
+_Steps = namedtuple("_Steps", "mts inv dts box")
+_Inputs = namedtuple("_Inputs", "press omega temp sign")
+_Model = namedtuple("_Model", "work idx consts fr th law variant stuck sigma")
+_Record = namedtuple("_Record", "states forces temps films torque outs normal offset")
 
 #: loop: the compiled loop once numba is imported; reason: why the kernel cannot be used
 _state: dict = {"loop": None, "reason": None, "numba_error": None}
 _LOCK = threading.RLock()
-
-
-class KernelUnavailableError(ModelError):
-    """``engine="kernel"`` was asked for but the compiled kernel cannot run (says why)."""
 
 
 def _cache_dir() -> str:
@@ -213,12 +232,15 @@ def _sign(omega, sign_speed):
     return 0.5 * x * (3.0 - x * x)
 
 
-def _emit(k, o, work, fr, consts, idx, press, omega, sg, temp_k, film_k, outs, normal, forces):
-    """Write the outputs of sample ``k`` into column ``o`` of ``outs`` (:data:`OUTPUT_COLUMNS`).
+def _emit(k, o, mdl, inp, sg, temp_k, film_k, rec):
+    """Write the outputs of sample ``k`` into column ``o`` of ``rec.outs`` (:data:`OUTPUT_COLUMNS`).
 
     The same formulas as :func:`clutch_ros.model.simulate.simulate`'s vectorised outputs;
-    ``normal`` (S_n) and ``forces`` (F_fn) row ``o`` too when they have it.
+    ``rec.normal`` (S_n) and ``rec.forces`` (F_fn) row ``o`` too when they have it.
     """
+    work, fr, consts, idx = mdl.work, mdl.fr, mdl.consts, mdl.idx
+    press, omega = inp.press, inp.omega
+    outs, normal, forces = rec.outs, rec.normal, rec.forces
     i_front, f0, nlam = idx[1], idx[5], idx[6]
     area, c2k, k_na, c2n, stiff = consts[0], consts[1], consts[2], consts[8], consts[9]
     zn = work[i_front]
@@ -252,17 +274,22 @@ def _emit(k, o, work, fr, consts, idx, press, omega, sg, temp_k, film_k, outs, n
             forces[o, i] = work[f0 + i]
 
 
-def _loop(mts, inv, dts, press, omega, temp, sign, work, idx, consts, fr, th, law, variant,
-          kts, nts, gmats, gts, hmats, stuck, sigma, states, forces, temps, films, torque_out,
-          outs, normal, offset):
+def _loop(steps, inp, mdl, rec):
     """Run steps 1..n-1 of simulate() (PackModel._advance per sample); return (film, temp).
 
-    ``mts``: the ZOH matrices transposed (size, n_state) per dt entry. Arrays with fewer rows
-    than samples are not written: ``states``, ``forces`` (n, N), ``temps``, ``films``,
-    ``torque_out`` (n - 1); ``outs`` (9, offset + n), columns ``offset + k`` (sample 0
-    too), and ``normal`` (offset + n, N) rows, ``forces`` too when ``outs`` is written. ``sign``
-    of size 0: the sign is computed here from ``consts[10]`` (sign speed).
+    ``steps.mts``: the ZOH matrices transposed (size, n_state) per dt entry. Arrays of
+    ``rec`` with fewer rows than samples are not written: ``states``, ``forces`` (n, N),
+    ``temps``, ``films``, ``torque`` (n - 1); ``outs`` (9, offset + n), columns
+    ``offset + k`` (sample 0 too), and ``normal`` (offset + n, N) rows, ``forces`` too when
+    ``outs`` is written. ``inp.sign`` of size 0: the sign is computed here from
+    ``consts[10]`` (sign speed). The warm active set ``mdl.stuck``, ``mdl.sigma`` is updated.
     """
+    mts, inv, dts = steps.mts, steps.inv, steps.dts
+    press, omega, temp, sign = inp.press, inp.omega, inp.temp, inp.sign
+    work, idx, consts, fr, th = mdl.work, mdl.idx, mdl.consts, mdl.fr, mdl.th
+    law, stuck, sigma = mdl.law, mdl.stuck, mdl.sigma
+    states, forces, temps, films = rec.states, rec.forces, rec.temps, rec.films
+    torque_out, outs, offset = rec.torque, rec.outs, rec.offset
     nx, i_front, i_force, i_torque, s0, f0, nlam, head = (idx[0], idx[1], idx[2], idx[3],
                                                           idx[4], idx[5], idx[6], idx[7])
     area, c2k, k_na, gain, coef, film_on = (consts[0], consts[1], consts[2], consts[3],
@@ -280,12 +307,13 @@ def _loop(mts, inv, dts, press, omega, temp, sign, work, idx, consts, fr, th, la
     for i in range(nlam):  # the warm active set
         bb[kernel_box.STUCK, i] = stuck[i]
         fs[kernel_box.SIGMA, i] = sigma[i]
+    scratch = (fs, bb, ib, gss)
+    lay = (head, s0, f0, nlam)
     has_sign = sign.size == n
     emit = outs.shape[1] >= offset + n
     if emit and n > 0:
         sg = sign[0] if has_sign else _sign(omega[0], consts[10])
-        _emit(0, offset, work, fr, consts, idx, press, omega, sg, cur_temp, film, outs,
-              normal, forces)
+        _emit(0, offset, mdl, inp, sg, cur_temp, film, rec)
     for k in range(1, n):
         j = k - 1
         sg = sign[k] if has_sign else _sign(omega[k], consts[10])
@@ -304,8 +332,7 @@ def _loop(mts, inv, dts, press, omega, temp, sign, work, idx, consts, fr, th, la
             for i in range(nlam):
                 work[f0 + i] = work[s0 + i] * gt
         elif law == _BOX:
-            _box_apply(variant, row, head, s0, f0, nlam, torque, coef * load, gain,
-                       kts, nts, gmats, gts, hmats, e, fs, bb, ib, gss)
+            _box_apply(mdl.variant, row, lay, torque, coef * load, gain, steps.box, e, scratch)
         _mat_vec(mts, e, row, 0, size, nx, x, 0)  # x = M w
         for r in range(nx):
             work[r] = x[0, r]
@@ -323,8 +350,7 @@ def _loop(mts, inv, dts, press, omega, temp, sign, work, idx, consts, fr, th, la
         if torque_out.size == n - 1:
             torque_out[j] = torque
         if emit:
-            _emit(k, offset + k, work, fr, consts, idx, press, omega, sg, cur_temp, film,
-                  outs, normal, forces)
+            _emit(k, offset + k, mdl, inp, sg, cur_temp, film, rec)
         elif forces.shape[0] == n:
             for i in range(nlam):
                 forces[k, i] = work[f0 + i]
@@ -369,27 +395,27 @@ def lowpass_series(t, u, time_constant: float, engine: str = "auto") -> np.ndarr
     return out
 
 
-def _box_matrices(law_name, table):
+def _box_matrices(law, kind, table):
     """Stacked per-dt matrices of the box laws: stick and normal transposed, G, Gᵀ, H."""
-    if law_name not in ("coulomb", "ff_t", "ff_v"):
+    if kind != _BOX:
         empty = np.zeros((len(table), 1, 1))
         return empty, empty, empty, empty, empty
-    prefix = "coulomb" if law_name == "coulomb" else "passive"
-    stick, normal, g, h = ([getattr(e, f"{prefix}_{name}") for e in table]
-                           for name in ("stick", "normal", "g", "h"))
+    stick, normal, g, h = zip(*(law.box_matrices(e) for e in table))
     return (np.ascontiguousarray(np.transpose(stick, (0, 2, 1))),
             np.ascontiguousarray(np.transpose(normal, (0, 2, 1))),
             np.ascontiguousarray(g), np.ascontiguousarray(np.transpose(g, (0, 2, 1))),
             np.ascontiguousarray(h))
 
 
-def _run(model, table, inverse, dts, press, omega, temp, sign, states, forces, temps, films,
-         torque, outs, normal, offset, engine):
-    """Call the compiled loop (see :func:`run_loop`); False when the numpy path must run."""
+def _run(model, series, rec, engine):
+    """Call the compiled loop (see :func:`run_loop`); False when the numpy path must run.
+
+    ``series``: :data:`Series`; ``rec``: the loop's outputs (``_Record``).
+    """
     if check_engine(engine) == "numpy":
         return False
     law = model.law
-    codes = LAW_CODES.get(law.name)
+    codes = law_info(law.name).kernel
     loop = _compiled()
     if loop is None or codes is None:
         why = _state["reason"] if loop is None else f"no compiled code for law {law.name!r}"
@@ -398,15 +424,37 @@ def _run(model, table, inverse, dts, press, omega, temp, sign, states, forces, t
         if codes is None:
             _log.warning("model kernel: %s; numpy path", why)
         return False
-    lay = model.layout
+    table = series.table
+    steps = _Steps(np.ascontiguousarray(np.transpose([e.M for e in table], (0, 2, 1))),
+                   np.ascontiguousarray(series.inverse, dtype=np.int64),
+                   np.ascontiguousarray(series.dts, dtype=float),
+                   _box_matrices(law, codes[0], table))
+    mdl = _model_record(model, codes)
+    work_before = model._work.copy()
+    try:
+        film, cur_temp = loop(steps, _Inputs(series.press, series.omega, series.temp,
+                                             series.sign), mdl, rec)
+    except _state["numba_error"] as err:  # compilation (typing/lowering) failed: nothing ran
+        np.copyto(model._work, work_before)
+        _disable(f"compilation failed ({type(err).__name__}: {str(err).splitlines()[0]})")
+        if engine == "kernel":
+            raise KernelUnavailableError(f"engine='kernel': {_state['reason']}") from err
+        return False
+    model._film, model._temp = float(film), float(cur_temp)
+    if law.warm_state() is not None:
+        law.set_warm_state((mdl.stuck, mdl.sigma))
+    return True
+
+
+def _model_record(model, codes):
+    """Return the loop's ``_Model`` of ``model``: work vector (shared), indices, constants."""
+    law, lay = model.law, model.layout
     fr_p, th_p, pk = model._fr, model.params.thermal, model.params.pack
     fr = np.array([fr_p.mu_ref, fr_p.temperature_slope, fr_p.temperature_ref,
                    fr_p.pressure_loss_at_ref, fr_p.pressure_ref, fr_p.stribeck_speed,
                    fr_p.static_ratio, fr_p.film_depth, fr_p.mu_min, fr_p.film_thinning_time,
                    fr_p.film_recovery_time], dtype=float)
     th = np.array([th_p.heat_capacity, th_p.conductance, th_p.oil_temperature], dtype=float)
-    mts = np.ascontiguousarray(np.transpose([e.M for e in table], (0, 2, 1)))
-    kts, nts, gmats, gts, hmats = _box_matrices(law.name, table)
     idx = np.array([lay.n_state, lay.i_front, lay.i_force, lay.i_torque, lay.law_states.start,
                     lay.forces.start, lay.lamella_count, lay.head], dtype=np.int64)
     consts = np.array([model._area, model._c2k, model._k_na, getattr(law, "gain", 0.0),
@@ -416,56 +464,41 @@ def _run(model, table, inverse, dts, press, omega, temp, sign, states, forces, t
     warm = law.warm_state()
     stuck = np.ones(lay.lamella_count, dtype=np.bool_) if warm is None else warm[0].copy()
     sigma = np.ones(lay.lamella_count) if warm is None else warm[1].astype(float)
-    work_before = model._work.copy()
-    try:
-        film, cur_temp = loop(mts, np.ascontiguousarray(inverse, dtype=np.int64),
-                              np.ascontiguousarray(dts, dtype=float), press, omega, temp, sign,
-                              model._work, idx, consts, fr, th, codes[0], codes[1], kts, nts,
-                              gmats, gts, hmats, stuck, sigma, states, forces, temps, films, torque,
-                              outs, normal, offset)
-    except _state["numba_error"] as err:  # compilation (typing/lowering) failed: nothing ran
-        np.copyto(model._work, work_before)
-        _disable(f"compilation failed ({type(err).__name__}: {str(err).splitlines()[0]})")
-        if engine == "kernel":
-            raise KernelUnavailableError(f"engine='kernel': {_state['reason']}") from err
-        return False
-    model._film, model._temp = float(film), float(cur_temp)
-    if warm is not None:
-        law.set_warm_state((stuck, sigma))
-    return True
+    return _Model(model._work, idx, consts, fr, th, codes[0], codes[1], stuck, sigma)
 
 
-def run_loop(model, table, inverse, dts, press, omega, temp, sign, states, forces, temps,
-             films, engine: str = "auto"):
+def run_loop(model, series, history, engine: str = "auto"):
     """Run :func:`~clutch_ros.model.simulate.simulate`'s steps 1..n-1 compiled.
 
-    Same arguments and effects as the numpy loop there (fills ``states[1:]``, ``forces[1:]``,
-    ``temps[1:]``, ``films[1:]``; leaves ``model`` as the step loop does) and returns the
-    law's torque per step [N m]. Returns None when the caller must run the numpy loop:
-    ``engine="numpy"``, or ``"auto"`` with the kernel unavailable (the reason is logged, see
-    the module docstring). ``engine="kernel"`` raises :class:`KernelUnavailableError` instead.
+    ``series``: :data:`Series`; ``history``: :data:`History`. Same effects as the numpy loop
+    there (fills ``states[1:]``, ``forces[1:]``, ``temps[1:]``, ``films[1:]``; leaves
+    ``model`` as the step loop does) and returns the law's torque per step [N m]. Returns
+    None when the caller must run the numpy loop: ``engine="numpy"``, or ``"auto"`` with the
+    kernel unavailable (the reason is logged, see the module docstring). ``engine="kernel"``
+    raises :class:`KernelUnavailableError` instead.
     """
-    torque = np.empty(dts.size)
+    torque = np.empty(series.dts.size)
     none = np.empty((0, 0))
-    if _run(model, table, inverse, dts, press, omega, temp, sign, states, forces, temps,
-            films, torque, none, none, 0, engine):
+    rec = _Record(history.states, history.forces, history.temps, history.films, torque, none,
+                  none, 0)
+    if _run(model, series, rec, engine):
         return torque
     return None
 
 
-def run_columns(model, table, inverse, dts, press, omega, temp, outs, normal=None,
-                forces=None, offset: int = 0, engine: str = "auto") -> bool:
+def run_columns(model, series, columns, engine: str = "auto") -> bool:
     """Run the whole series compiled, writing only the outputs (no state history).
 
-    ``outs`` (9, offset + n): in columns ``offset:offset + n`` the :data:`OUTPUT_COLUMNS` of
-    every sample, sample 0 (the state ``model`` starts in) included, with the formulas of
-    :func:`~clutch_ros.model.simulate.simulate`; ``normal`` and ``forces`` (offset + n, N), if
-    given: S_n [N] and the held spline forces F_fn [N] (laws that keep them in the work
-    vector, i.e. not ``ff_t_printed`` / ``ff_v_printed``) in the same rows. The sign is
-    computed in the loop. Returns False when the numpy path must run (as :func:`run_loop`
-    returns None).
+    ``series``: :data:`Series` (its ``sign`` is not used: the sign is computed in the loop).
+    ``columns``: :data:`Columns`; ``outs`` (9, offset + n): in columns ``offset:offset + n``
+    the :data:`OUTPUT_COLUMNS` of every sample, sample 0 (the state ``model`` starts in)
+    included, with the formulas of :func:`~clutch_ros.model.simulate.simulate`; ``normal``
+    and ``forces`` (offset + n, N), if given: S_n [N] and the held spline forces F_fn [N]
+    (laws that keep them in the work vector, i.e. whose class records its forces) in the
+    same rows. Returns False when the numpy path must run (as :func:`run_loop` returns None).
     """
     none = np.empty((0, 0))
-    return _run(model, table, inverse, dts, press, omega, temp, np.empty(0), none,
-                none if forces is None else forces, np.empty(0), np.empty(0), np.empty(0),
-                outs, none if normal is None else normal, int(offset), engine)
+    rec = _Record(none, none if columns.forces is None else columns.forces, np.empty(0),
+                  np.empty(0), np.empty(0), columns.outs,
+                  none if columns.normal is None else columns.normal, int(columns.offset))
+    return _run(model, series._replace(sign=np.empty(0)), rec, engine)

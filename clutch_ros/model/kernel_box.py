@@ -14,9 +14,13 @@ functions in place (they stay plain Python, and correct, without numba).
 
 from __future__ import annotations
 
-__all__ = ["BOX_FUNCTIONS", "COULOMB", "FF_T", "FF_V", "SCRATCH_ROWS", "SIGMA", "STUCK",
-           "mat_vec"]
+__all__ = ["BOX", "BOX_FUNCTIONS", "COULOMB", "FF_T", "FF_V", "LINEAR", "NONE", "SCRATCH_ROWS",
+           "SIGMA", "STUCK", "VISCOUS", "mat_vec"]
 
+#: kinds of law of the compiled loop (the registry, :mod:`~.laws`, gives each law its code):
+#: no force, linear (T enters the work vector), held viscous force, box problem
+NONE, LINEAR, VISCOUS, BOX = 0, 1, 2, 3
+#: variants of the box problem (:func:`_box_apply`)
 COULOMB, FF_T, FF_V = 0, 1, 2
 _COULOMB, _FF_T, _FF_V = COULOMB, FF_T, FF_V
 _MAX_ACTIVE_SET_ITERATIONS = 64
@@ -198,15 +202,19 @@ def _box_solve(gm, gt, hm, e, n, fs, bb, ib, gss):
         fs[SIGMA, i] = fs[_TSIGMA, i]
 
 
-def _box_apply(variant, work, head, s0, f0, nlam, torque, scale, gain, kts, nts, gm, gt, hm,
-               e, fs, bb, ib, gss):
+def _box_apply(variant, work, lay, torque, scale, gain, box, e, scratch):
     """Held spline forces of the box laws (coulomb, passive ff_t / ff_v) into ``work``.
 
-    ``kts``, ``nts``: per dt entry ``e`` the stick-force and normal-force matrices
-    transposed (head, N) and (head, N + 1), so the products run down contiguous rows (same
-    sums, same order, :func:`mat_vec`); ``gm``, ``gt``, ``hm``: G, Gᵀ and H. ``work`` is the
-    work vector as a (1, size) row. The warm set is ``bb[STUCK]``, ``fs[SIGMA]``.
+    ``lay`` = (head, s0, f0, nlam): the work vector's head length, first law state, first
+    force, lamella count. ``box`` = (kts, nts, gm, gt, hm): per dt entry ``e`` the stick-force
+    and normal-force matrices transposed (head, N) and (head, N + 1), so the products run
+    down contiguous rows (same sums, same order, :func:`mat_vec`), then G, Gᵀ and H.
+    ``scratch`` = (fs, bb, ib, gss) (module docstring). ``work`` is the work vector as a
+    (1, size) row. The warm set is ``bb[STUCK]``, ``fs[SIGMA]``.
     """
+    head, s0, f0, nlam = lay
+    kts, nts, gm, gt, hm = box
+    fs, bb, ib, gss = scratch
     anyd = False
     for i in range(nlam):
         if variant == _FF_T:

@@ -47,7 +47,7 @@ import numpy as np
 from clutch_ros.model.errors import InputError, NonFiniteSample
 from clutch_ros.model.film import film_equilibrium, film_step, thermal_step
 from clutch_ros.model.friction import mu_scalar, sign_scalar
-from clutch_ros.model.spline_passive import make_spline_law
+from clutch_ros.model.laws import make_spline_law
 from clutch_ros.model.statespace import (
     build_state_space,
     spring_force_matrix,
@@ -313,7 +313,7 @@ class PackModel:
         if self.law.name == old_law.name:
             w[lay.law_states] = old_state[old_layout.law_states]
             w[lay.forces] = old_state[old_layout.forces]
-            if self.law.name in ("ff_t", "ff_t_printed") and old_law.gain > 0.0:
+            if self.law.states_scale_with_gain and old_law.gain > 0.0:
                 w[lay.law_states] *= self.law.gain / old_law.gain
             self.law.set_warm_state(old_law.warm_state())
         else:

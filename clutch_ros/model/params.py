@@ -45,11 +45,12 @@ from __future__ import annotations
 
 import difflib
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any
 
 from clutch_ros.model.errors import ParameterError
+from clutch_ros.model.laws import LawNames, law_info
 
 __all__ = [
     "ParamSpec",
@@ -70,11 +71,12 @@ __all__ = [
 #: Key namespace -> attribute of :class:`ClutchParams`.
 NAMESPACES = {"clutch": "pack", "friction": "friction", "spline": "spline", "slip": "slip",
               "thermal": "thermal"}
-#: Valid values of ``spline.law``: the passive laws, then Eqs. 29-30 exactly as printed
-#: (not passive; for reproducing the thesis only, never a default).
-SPLINE_LAWS = ("none", "ff_t", "ff_v", "coulomb", "ff_t_printed", "ff_v_printed")
-#: The laws that never do positive work on a lamella.
-PASSIVE_LAWS = ("none", "ff_t", "ff_v", "coulomb")
+#: Valid values of ``spline.law``: every law of the registry (:mod:`~clutch_ros.model.laws`),
+#: the passive laws, then Eqs. 29-30 exactly as printed (not passive; for reproducing the
+#: thesis only, never a default). A live view: a law registered later is in it.
+SPLINE_LAWS = LawNames()
+#: The laws that never do positive work on a lamella (live view of the registry).
+PASSIVE_LAWS = LawNames("passive")
 
 
 @dataclass(frozen=True)
@@ -93,7 +95,7 @@ class ParamSpec:
     maximum: float | int | None = None
     default: Any = None
     min_exclusive: bool = False
-    choices: tuple[str, ...] = ()
+    choices: Sequence[str] = ()  # spline.law: a live view of the law registry
 
     def check(self, value: Any) -> Any:
         """Return ``value`` converted to this key's type; raise ParameterError if invalid."""
@@ -124,8 +126,9 @@ class ParamSpec:
 
 def _spec(key, unit, description, kind="float", minimum=None, maximum=None, default=None,
           min_exclusive=False, choices=()):
+    choices = choices if isinstance(choices, LawNames) else tuple(choices)  # live: the laws
     return key, ParamSpec(key, unit, description, kind, minimum, maximum, default,
-                          min_exclusive, tuple(choices))
+                          min_exclusive, choices)
 
 
 #: Every model key (the README.md parameter contract plus model extras with defaults).
@@ -397,8 +400,9 @@ class ClutchParams:
         ``slip_rpm`` must be 10 or 30 for ff_t/ff_v (the Table 7 columns); it is ignored for
         ``none`` and ``coulomb``, which keep the current gain/τ (unused by them).
         """
-        if law in ("ff_t", "ff_v", "ff_t_printed", "ff_v_printed"):
-            entry = TABLE7.get((law[:4], int(slip_rpm)))
+        row = law_info(law).table7
+        if row is not None:
+            entry = TABLE7.get((row, int(slip_rpm)))
             if entry is None:
                 raise ParameterError("spline.law", f"Table 7 has no {law} column for "
                                      f"{slip_rpm} rpm (10 or 30)")

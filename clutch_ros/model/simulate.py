@@ -139,8 +139,8 @@ def simulate(params, t, actuating_pressure, slip_speed, lamella_temperature,
     law = model.law
     ran = "numpy"
     if n > 1:
-        torque, ran = _loop(model, t, press, omega, temp, sign, states, forces, temps, films,
-                            engine)
+        series = kernel.Series(*_table(model, t), press, omega, temp, sign)
+        torque, ran = _loop(model, series, kernel.History(states, forces, temps, films), engine)
         if law.has_force and not law.records_forces:
             forces[1:] = law.forces_series(states[:-1, lay.law_states],
                                            states[1:, lay.law_states], torque)
@@ -150,10 +150,10 @@ def simulate(params, t, actuating_pressure, slip_speed, lamella_temperature,
 
 
 def _table(model, t):
-    """Return the steps of ``t``: (dts [s], discretisation entries, entry index per step)."""
+    """Return the steps of ``t``: (discretisation entries, entry index per step, dts [s])."""
     dts = np.diff(t)
     if dts.size == 0:  # one sample: no step (an entry only to give the loop its shapes)
-        return dts, [model.discretisation(1e-3)], np.zeros(0, dtype=np.int64)
+        return [model.discretisation(1e-3)], np.zeros(0, dtype=np.int64), dts
     res = model.dt_resolution
     keys = np.maximum(np.rint(dts / res), 1.0).astype(np.int64) if res > 0.0 else dts
     if keys.min() == keys.max():  # uniform sampling: one entry
@@ -165,21 +165,21 @@ def _table(model, t):
         table = [model.discretisation(float(k) * res) for k in uniq.tolist()]
     else:
         table = [model.discretisation(float(d)) for d in uniq.tolist()]
-    return dts, table, inverse
+    return table, inverse, dts
 
 
 def simulate_columns(params, t, actuating_pressure, slip_speed, lamella_temperature, outs, *,
-                     model: PackModel, normal=None, forces=None, offset: int = 0,
-                     engine: str = "auto", reset: bool = True) -> bool:
+                     model: PackModel, engine: str = "auto", reset: bool = True) -> bool:
     """:func:`simulate`'s outputs written straight into arrays by the compiled kernel.
 
     For long series when only some outputs are needed: no state history, no per-lamella
     arrays unless asked. ``t`` [s] (validated, strictly increasing), pressure [Pa], slip
     [rad/s] and temperature [°C] are float64 arrays of one length n (NaN temperature: not
-    measured); ``outs`` (9, ≥ offset + n) receives
-    :data:`~clutch_ros.model.kernel.OUTPUT_COLUMNS` in columns ``offset:offset + n``,
-    ``normal`` / ``forces`` (≥ offset + n, N) the normal [N] and spline forces [N] in rows
-    ``offset:offset + n``. ``model`` is reset
+    measured); ``outs`` (9, ≥ n) receives :data:`~clutch_ros.model.kernel.OUTPUT_COLUMNS`
+    in columns ``0:n``; or ``outs`` is a :data:`~clutch_ros.model.kernel.Columns`
+    ``(outs, normal, forces, offset)``: ``outs`` (9, ≥ offset + n) receives them in columns
+    ``offset:offset + n``, ``normal`` / ``forces`` (≥ offset + n, N), if not None, the
+    normal [N] and spline forces [N] in rows ``offset:offset + n``. ``model`` is reset
     to the equilibrium at the first sample, as :func:`simulate` does (``reset`` False: it
     continues from the state it is in, which sample 0 reports). Returns False, having
     done nothing, when the kernel cannot run it (``engine="numpy"``, numba unavailable, or a
@@ -197,24 +197,27 @@ def simulate_columns(params, t, actuating_pressure, slip_speed, lamella_temperat
     if reset:
         model.reset(float(actuating_pressure[0]), float(lamella_temperature[0]),
                     float(slip_speed[0]))
-    dts, table, inverse = _table(model, t)
-    return kernel.run_columns(model, table, inverse, dts, actuating_pressure, slip_speed,
-                              lamella_temperature, outs, normal, forces, offset, engine)
+    columns = outs if isinstance(outs, kernel.Columns) else kernel.Columns(outs)
+    series = kernel.Series(*_table(model, t), actuating_pressure, slip_speed,
+                           lamella_temperature, np.empty(0))
+    return kernel.run_columns(model, series, columns, engine)
 
 
-def _loop(model, t, press, omega, temp, sign, states, forces, temps, films, engine):
+def _loop(model, series, history, engine):
     """Run steps 1..n-1 compiled or with :meth:`PackModel._advance` (the code ``step()`` runs).
 
-    Fills the state, force, temperature and film rows; returns (the law's torque per step,
-    the engine that ran).
+    ``series``: :data:`~clutch_ros.model.kernel.Series`; fills the rows of ``history``
+    (:data:`~clutch_ros.model.kernel.History`); returns (the law's torque per step, the engine
+    that ran).
     """
     lay = model.layout
     nx = lay.n_state
     work = model._work
     law = model.law
-    dts, table, inverse = _table(model, t)
-    torque = kernel.run_loop(model, table, inverse, dts, press, omega, temp, sign, states,
-                             forces, temps, films, engine)
+    table, inverse, dts = series.table, series.inverse, series.dts
+    press, omega, temp, sign = series.press, series.omega, series.temp, series.sign
+    states, forces, temps, films = history
+    torque = kernel.run_loop(model, series, history, engine)
     if torque is not None:
         return torque, "kernel"
     entries = [table[i] for i in inverse.tolist()]

@@ -76,6 +76,7 @@ class SplineLaw:
     has_force = False
     records_forces = False  # True: simulate() must record the forces per step
     acts_per_step = False  # True: apply() does work before every step
+    states_scale_with_gain = False  # True: the states are κ times a gain-free filter
 
     def __init__(self, params):
         self.params = params
@@ -140,6 +141,7 @@ class TorqueFilterLaw(SplineLaw):
     name = "ff_t_printed"
     n_states = 1
     has_force = True
+    states_scale_with_gain = True
 
     def __init__(self, params):
         super().__init__(params)
@@ -267,6 +269,11 @@ class CoulombLaw(SplineLaw):
         entry.coulomb_hdiag = np.diag(h).copy()
         entry.coulomb_sets = {}
         entry.coulomb_blocks = {}
+
+    @staticmethod
+    def box_matrices(entry):
+        """Stick-force, normal-force, G and H matrices of ``entry`` (the compiled box loop)."""
+        return entry.coulomb_stick, entry.coulomb_normal, entry.coulomb_g, entry.coulomb_h
 
     def bind(self, work, layout):
         """Also keep the index of F_act and the [1, a] mixing vector."""
@@ -456,7 +463,4 @@ class CoulombLaw(SplineLaw):
         self._sigma = sigma
         self._mats_entry = None
 
-
-_LAWS = {"none": SplineLaw, "ff_t_printed": TorqueFilterLaw, "ff_v_printed": ViscousLaw,
-         "coulomb": CoulombLaw}
 

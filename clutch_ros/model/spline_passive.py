@@ -52,7 +52,8 @@ import math
 
 import numpy as np
 
-from clutch_ros.model.spline import _LAWS, SplineLaw
+from clutch_ros.model.laws import make_spline_law  # re-exported (defined with the registry)
+from clutch_ros.model.spline import SplineLaw
 
 __all__ = ["box_forces", "solve_box", "PassiveLaw", "PassiveTorqueFilterLaw",
            "PassiveViscousLaw", "PASSIVE_FILTER_LAWS", "make_spline_law"]
@@ -173,6 +174,11 @@ class PassiveLaw(SplineLaw):
         entry.passive_h = -(g + g.T) / 2.0
         entry.passive_solves = {}
 
+    @staticmethod
+    def box_matrices(entry):
+        """Stick-force, normal-force, G and H matrices of ``entry`` (the compiled box loop)."""
+        return entry.passive_stick, entry.passive_normal, entry.passive_g, entry.passive_h
+
     def warm_state(self):
         """Active set of the last step (stuck mask, side)."""
         return (self._stuck.copy(), self._sigma.copy())
@@ -235,6 +241,7 @@ class PassiveTorqueFilterLaw(PassiveLaw):
 
     name = "ff_t"
     n_states = 1
+    states_scale_with_gain = True
 
     def fill(self, a_full, b_full, x_full, n_pack):
         """τ ẏ = κ T − y; the held forces enter the pack through its force columns."""
@@ -292,11 +299,4 @@ class PassiveViscousLaw(PassiveLaw):
 
 
 #: law name -> class of the passive filter laws
-PASSIVE_FILTER_LAWS = {"ff_t": PassiveTorqueFilterLaw, "ff_v": PassiveViscousLaw}
-
-
-def make_spline_law(params) -> SplineLaw:
-    """Return a fresh law object for ``params.spline.law`` (one per PackModel)."""
-    name = params.spline.law
-    cls = PASSIVE_FILTER_LAWS.get(name) or _LAWS[name]
-    return cls(params)
+PASSIVE_FILTER_LAWS = {cls.name: cls for cls in (PassiveTorqueFilterLaw, PassiveViscousLaw)}

@@ -25,3 +25,21 @@ def test_parameter_error_names_key_and_source():
     assert str(located).startswith("params/x.yaml: ") and "friction.mu_ref" in str(located)
     with pytest.raises(ConfigError, match="friction.mu_ref"):
         raise located
+
+
+def test_every_model_exception_lives_in_errors_and_keeps_its_old_import():
+    from clutch_ros.model import calibration, fit_data, identification, kernel
+
+    for module, names in ((calibration, ("CalibrationError",)),
+                          (kernel, ("KernelUnavailableError",)),
+                          (fit_data, ("IdentificationError", "NoMeasuredTorqueError",
+                                      "TooShortError", "NoExcitationError",
+                                      "UnidentifiableParameterError")),
+                          (identification, ("IdentificationError",))):
+        for name in names:
+            assert getattr(module, name) is getattr(errors, name), name
+            assert issubclass(getattr(errors, name), errors.ModelError)
+    for name in ("NoMeasuredTorqueError", "TooShortError", "NoExcitationError",
+                 "UnidentifiableParameterError"):
+        assert issubclass(getattr(errors, name), errors.IdentificationError)
+    assert issubclass(errors.UnknownLawError, errors.ParameterError)
