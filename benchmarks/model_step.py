@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from clutch_ros.model.pack import PackModel
-from clutch_ros.model.params import ClutchParams
+from clutch_ros.model.params import SPLINE_LAWS, ClutchParams
 from clutch_ros.model.sequences import concatenate, table3
 from clutch_ros.model.simulate import simulate, simulate_columns
 
@@ -37,7 +37,7 @@ BENCH_PARAMS = {
     "friction.stribeck_speed": 0.5, "spline.law": "ff_t", "spline.gain": 0.3786,
     "spline.time_constant": 0.9434,
 }
-LAWS = ("none", "ff_t", "ff_v", "coulomb", "ff_t_printed", "ff_v_printed")
+LAWS = tuple(SPLINE_LAWS)  # every registered law (clutch_ros/model/laws.py)
 ENGINES = ("numpy", "kernel")
 
 

@@ -19,6 +19,7 @@ from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.dashboard import BagPlayer, BagStream, DashboardServer
 from clutch_ros.errors import ClutchError
+from clutch_ros.model.params import PASSIVE_LAWS
 
 __all__ = ["add_parser", "run"]
 
@@ -41,7 +42,7 @@ def add_parser(sub) -> None:
     p.add_argument("--params", default="flexiforce_8",
                    help="estimator parameter preset or YAML file for --bag estimates "
                         "(default: flexiforce_8, the estimator node's)")
-    p.add_argument("--law", choices=("none", "ff_t", "ff_v", "coulomb"),
+    p.add_argument("--law", choices=tuple(PASSIVE_LAWS),
                    help="override spline.law of --params (as clutch replay --law)")
     p.add_argument("--json", action="store_true",
                    help="print a JSON summary of the playback on stdout at the end")

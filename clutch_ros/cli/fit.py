@@ -41,6 +41,7 @@ from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
 from clutch_ros.model.calibration import METHODS
 from clutch_ros.model.identification import SAMPLE_BUDGET, FitOptions, fit
+from clutch_ros.model.params import SPLINE_LAWS
 from clutch_ros.numeric_env import usable_cores
 from clutch_ros.offline.fit_auto import (
     AutoFitResult,
@@ -53,7 +54,8 @@ from clutch_ros.offline.flexiforce import load_runs
 
 __all__ = ["add_parser", "run", "main"]
 
-LAWS = ("none", "ff_t", "ff_v", "coulomb", "ff_t_printed", "ff_v_printed")
+#: every registered spline law (model/laws.py), read when the parser is built
+LAWS = SPLINE_LAWS
 
 
 def add_parser(sub) -> None:
@@ -61,7 +63,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser("fit", help="fit the model to recorded rig data (grey-box)",
                        description=__doc__.split("\n\n")[0])
     p.add_argument("bags", nargs="+", metavar="BAG", help="bags holding RigState messages")
-    p.add_argument("--law", required=True, choices=LAWS + ("auto",),
+    p.add_argument("--law", required=True, choices=(*LAWS, "auto"),
                    help="spline-friction law to fit; auto: fit every passive law (none, ff_t, "
                         "ff_v, coulomb), report each one's RMSE ratio against Eq. 1 on the "
                         "--validate bags (else the fit bags) and write the best")
