@@ -173,7 +173,8 @@ class RigStateAssembler(can.Listener):
             return None
         key = frame_key(msg.arbitration_id, msg.is_extended_id)
         valid = _valid_frame(msg)
-        values = reason = None
+        values: dict[str, float | int] | None = None
+        reason: str | None = None
         if valid and not msg.is_remote_frame and key in self._known:
             try:
                 values = self.db.decode(msg.arbitration_id, msg.data, msg.is_extended_id)
@@ -210,13 +211,14 @@ class RigStateAssembler(can.Listener):
             if self._newest_time is None or stamp > self._newest_time:
                 self._newest_time = stamp
             fill = self._fill.get(key)
-            if fill is not None:
+            if fill is not None and values is not None:  # values: decoded, no reason
                 fill(self._live, values)
                 self._stamps[key] = stamp
                 self._rejected.discard(key)
         return key
 
-    def _track_counter(self, key: int, stamp: float, values) -> None:
+    def _track_counter(self, key: int, stamp: float,
+                       values: Mapping[str, float | int] | None) -> None:
         name = self._counter_signal.get(key)
         if name is None or values is None:
             return
@@ -280,7 +282,7 @@ class RigStateAssembler(can.Listener):
         if now is None:
             now = newest if newest is not None else 0.0
         sample.ages, sample.stale, sample.stale_mask = {}, [], 0
-        received = {}
+        received: dict[str | None, bool] = {}  # sibling None: no sibling
         for group in self.groups:
             keys = self._group_keys[group.name]
             seen = [stamps[k] for k in keys if k in stamps]
@@ -290,12 +292,12 @@ class RigStateAssembler(can.Listener):
             keys = self._group_keys[group.name]
             if not keys:
                 continue
-            seen = sum(k in stamps for k in keys)
+            n_seen = sum(k in stamps for k in keys)
             sibling = self._sibling.get(group.name)
             if (
-                (seen == 0 and (group.required or received.get(sibling, False)))
-                or 0 < seen < len(keys)
-                or (seen and sample.ages[group.name] > group.max_age)
+                (n_seen == 0 and (group.required or received.get(sibling, False)))
+                or 0 < n_seen < len(keys)
+                or (n_seen and sample.ages[group.name] > group.max_age)
                 or any(k in rejected for k in keys)
             ):
                 sample.stale_mask |= 1 << group.bit

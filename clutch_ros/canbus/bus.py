@@ -152,7 +152,9 @@ class ReconnectingBus(can.BusABC):
             raise BusConfigError("need 0 < backoff_initial <= backoff_max and factor >= 1")
         if max_send_failures < 1:
             raise BusConfigError("max_send_failures must be >= 1")
-        super().__init__(channel=config.channel, can_filters=None)
+        # BusABC only stores channel; python-can's Channel type leaves out None (no channel),
+        # which can.Bus() itself accepts.
+        super().__init__(channel=config.channel, can_filters=None)  # type: ignore[arg-type]
         self.config = config
         self.channel_info = f"reconnecting {config.describe()}"
         self._can_protocol = can.CanProtocol.CAN_FD if config.fd else can.CanProtocol.CAN_20

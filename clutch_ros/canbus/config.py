@@ -114,7 +114,7 @@ class BusConfig:
         return cls(interface=interface, channel=params.get("can.channel", cls.channel),
                    bitrate=params.get("can.bitrate") or None, fd=params.get("can.fd") or None,
                    receive_own_messages=bool(params.get("can.receive_own_messages", False)),
-                   can_filters=filters or None,
+                   can_filters=parse_filters(filters) if filters else None,
                    extra={"port": port} if interface == "udp_multicast" and port else {})
 
     def kwargs(self) -> dict[str, Any]:

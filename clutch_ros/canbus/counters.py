@@ -13,6 +13,7 @@ the caller passes (bus time or a monotonic clock), never read from the system cl
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Collection
 from dataclasses import dataclass, field
 
 from clutch_ros.canbus.dbc import format_frame_key
@@ -227,12 +228,14 @@ class PublishPacer:
     goes back (a new log, an adapter's clock reset) earns no tokens. Not thread-safe.
     """
 
-    def __init__(self, rate: float, trigger: int | None, fallback=frozenset(),
+    def __init__(self, rate: float, trigger: int | None,
+                 fallback: Collection[int] = frozenset(),
                  burst: float = 2.0) -> None:
         if not rate > 0.0:
             raise ValueError(f"rate must be > 0 1/s, got {rate!r}")
         self.rate, self.trigger, self.fallback, self.burst = rate, trigger, fallback, burst
-        self._tokens, self._last = burst, None
+        self._tokens = burst
+        self._last: float | None = None
         #: a frame was held back by the rate cap and not published since
         self.pending = False
 

@@ -19,6 +19,7 @@ import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import can
 import cantools
@@ -70,7 +71,7 @@ def counter_gap(previous: int, current: int, modulo: int = 16) -> int:
     return (current - previous - 1) % modulo
 
 
-def _finite(value, what: str) -> float:
+def _finite(value: Any, what: str) -> float:
     """Return ``float(value)``; a non-number or NaN/inf raises :class:`EncodeError`."""
     try:
         number = float(value)
@@ -216,22 +217,23 @@ class RigDatabase:
                 )
             )
         counter = next((s.name for s in message.signals if s.name.endswith("_Counter")), None)
-        checksum = None
+        checksum: str | None = None
         attr = message.dbc.attributes.get(_E2E_ATTRIBUTE) if message.dbc else None
         scheme = attr.value if attr is not None else None
         if isinstance(scheme, int) and attr is not None:
             choices = attr.definition.choices or []
             scheme = choices[scheme] if 0 <= scheme < len(choices) else None
         if scheme == _E2E_CRC8:
-            checksum = next(
+            checksum_sig = next(
                 (s for s in message.signals if s.name.endswith("_Checksum")), None
             )
-            if checksum is None or checksum.start != 0 or checksum.length != 8 or counter is None:
+            if (checksum_sig is None or checksum_sig.start != 0 or checksum_sig.length != 8
+                    or counter is None):
                 raise DbcError(
                     f"{self.path}: E2E message {message.name} needs an 8-bit *_Checksum "
                     "signal at bit 0 and a *_Counter signal"
                 )
-            checksum = checksum.name
+            checksum = checksum_sig.name
         cycle = message.cycle_time
         return FrameSpec(
             name=message.name,

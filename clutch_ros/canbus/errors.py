@@ -50,7 +50,7 @@ class FrameDecodeError(CanError, DataError):
     or ``"unknown"`` (identifier not in the database).
     """
 
-    def __init__(self, message: str, reason: str, values: dict | None = None,
+    def __init__(self, message: str, reason: str, values: dict[str, float | int] | None = None,
                  signals: tuple[str, ...] = ()) -> None:
         super().__init__(message)
         self.reason = reason

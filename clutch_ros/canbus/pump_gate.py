@@ -223,7 +223,8 @@ class PumpCommandGate:
         """
         refusal = self._admission(stamp)
         if refusal is not None:
-            return self.refuse(*refusal)
+            self.refuse(*refusal)
+            return None
         now = float(self._clock())
         if stamp is not None:
             self._last_stamp = stamp

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -114,7 +114,8 @@ class Write(NamedTuple):
 
     key: str
     field: str
-    index: int | None
+    # shadows tuple.index() on purpose (no caller uses that method on a Write)
+    index: int | None  # type: ignore[assignment]
     signal: str
     mult: float
     offset: float
@@ -133,7 +134,7 @@ class ResolvedMap:
     messages: Mapping[str, str]
     pump: PumpRequestCodec
 
-    def group_messages(self, keys) -> tuple[str, ...]:
+    def group_messages(self, keys: Iterable[str]) -> tuple[str, ...]:
         """Return the DBC messages (sorted, unique) feeding any of ``keys``."""
         return tuple(sorted({self.messages[k] for k in keys if k in self.messages}))
 

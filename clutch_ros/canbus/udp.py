@@ -144,8 +144,11 @@ def _raised_in_can_message(exc: BaseException) -> bool:
 
 _MESSAGE_FILE = can.message.__file__
 
+#: what identifies an echoed frame: identifier, flags and payload
+_Signature = tuple[int, bool, bool, bool, bool, bytes]
 
-def _signature(msg: can.Message) -> tuple:
+
+def _signature(msg: can.Message) -> _Signature:
     return (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.is_error_frame,
             msg.is_fd, bytes(msg.data))
 
@@ -174,8 +177,8 @@ class EchoFilter:
         self._window = window
         self._capacity = capacity
         self._lock = threading.Lock()
-        self._order: deque[tuple[float, tuple]] = deque()
-        self._pending: dict[tuple, int] = {}
+        self._order: deque[tuple[float, _Signature]] = deque()
+        self._pending: dict[_Signature, int] = {}
         #: echoes recognised and removed
         self.echoes = 0
 
