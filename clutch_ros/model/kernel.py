@@ -53,7 +53,9 @@ import math
 import os
 import threading
 from collections import namedtuple
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -61,6 +63,12 @@ from clutch_ros.model import kernel_box
 from clutch_ros.model.errors import InputError, KernelUnavailableError
 from clutch_ros.model.laws import LawTable, law_info
 from clutch_ros.model.slip import lowpass_series as _lowpass_numpy
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from clutch_ros.model.arraytypes import FloatArray
+    from clutch_ros.model.pack import PackModel
 
 __all__ = ["ENGINES", "Columns", "History", "KernelUnavailableError", "LAW_CODES",
            "OUTPUT_COLUMNS", "Series", "available", "check_engine", "lowpass_series",
@@ -106,7 +114,9 @@ _Model = namedtuple("_Model", "work idx consts fr th law variant stuck sigma")
 _Record = namedtuple("_Record", "states forces temps films torque outs normal offset")
 
 #: loop: the compiled loop once numba is imported; reason: why the kernel cannot be used
-_state: dict = {"loop": None, "reason": None, "numba_error": None}
+_state: dict[str, Any] = {"loop": None, "reason": None, "numba_error": None}
+#: the compiled _loop: (steps, inputs, model, record) -> (film, temperature)
+_LoopFunction = Callable[..., tuple[float, float]]
 _LOCK = threading.RLock()
 
 
@@ -135,7 +145,8 @@ def available() -> bool:
 
 def unavailable_reason() -> str | None:
     """Return why the kernel cannot be used (None while it can, or before the first try)."""
-    return _state["reason"]
+    reason: str | None = _state["reason"]
+    return reason
 
 
 def _disable(reason: str, level: int = logging.WARNING) -> None:
@@ -144,16 +155,18 @@ def _disable(reason: str, level: int = logging.WARNING) -> None:
     _log.log(level, "model kernel: %s; numpy path", reason)
 
 
-def _compiled():
-    if _state["loop"] is not None or _state["reason"] is not None:
-        return _state["loop"]
+def _compiled() -> _LoopFunction | None:
+    loop: _LoopFunction | None = _state["loop"]
+    if loop is not None or _state["reason"] is not None:
+        return loop
     with _LOCK:  # threads (a fit's Jacobian, a replay's estimate) may ask at once: set up once
         return _set_up()
 
 
-def _set_up():
-    if _state["loop"] is not None or _state["reason"] is not None:
-        return _state["loop"]
+def _set_up() -> _LoopFunction | None:
+    loop: _LoopFunction | None = _state["loop"]
+    if loop is not None or _state["reason"] is not None:
+        return loop
     if os.environ.get("CLUTCH_KERNEL", "1") == "0":
         _disable("switched off by CLUTCH_KERNEL=0", logging.INFO)
         return None
@@ -182,8 +195,8 @@ def _set_up():
     for name in ("_mu", "_film_step", "_thermal_step", "_sign", "_emit", "_loop"):
         func = g[name]  # helpers first: later functions call the compiled ones
         g[name] = func if hasattr(func, "py_func") else jit(func)
-    _state["loop"] = g["_loop"]
-    return _state["loop"]
+    loop = _state["loop"] = g["_loop"]
+    return loop
 
 
 # -- the per-sample code (plain Python; compiled by _compiled()) ------------------------------
@@ -192,23 +205,26 @@ def _set_up():
 # th: heat_capacity, conductance, oil_temperature
 
 
-def _mu(fr, temperature, pressure, slip_speed, film):
+def _mu(fr: FloatArray, temperature: float, pressure: float, slip_speed: float,
+        film: float) -> float:
     f_t = 1.0 + fr[1] * (temperature - fr[2])
     p = pressure if pressure > 0.0 else 0.0
     f_p = 1.0 - fr[3] * p / fr[4]
     x = slip_speed / fr[5]
     g = math.exp(-(x * x))
     f_w = 1.0 + (fr[6] - 1.0) * (g + (1.0 - g) * fr[7] * (1.0 - film))
-    mu = fr[0] * f_t * f_p * f_w
-    return mu if mu > fr[8] else fr[8]
+    mu: float = fr[0] * f_t * f_p * f_w
+    mu_min: float = fr[8]
+    return mu if mu > mu_min else mu_min
 
 
-def _film_step(fr, film, dt, pressure, slip_speed):
+def _film_step(fr: FloatArray, film: float, dt: float, pressure: float,
+               slip_speed: float) -> float:
     x = slip_speed / fr[5]
     g = math.exp(-(x * x))
     p = pressure if pressure > 0.0 else 0.0
-    thin = (p / fr[4]) * g / fr[9]
-    rec = (1.0 - g) / fr[10]
+    thin: float = (p / fr[4]) * g / fr[9]
+    rec: float = (1.0 - g) / fr[10]
     rate = thin + rec
     if rate <= 0.0:
         return film
@@ -216,13 +232,13 @@ def _film_step(fr, film, dt, pressure, slip_speed):
     return target + (film - target) * math.exp(-rate * dt)
 
 
-def _thermal_step(th, temperature, dt, power):
-    g = th[1]
-    target = th[2] + power / g
+def _thermal_step(th: FloatArray, temperature: float, dt: float, power: float) -> float:
+    g: float = th[1]
+    target: float = th[2] + power / g
     return target + (temperature - target) * math.exp(-dt * g / th[0])
 
 
-def _sign(omega, sign_speed):
+def _sign(omega: float, sign_speed: float) -> float:
     """:func:`clutch_ros.model.friction.sign_factor` of one sample."""
     x = omega / sign_speed
     if x >= 1.0:
@@ -232,7 +248,8 @@ def _sign(omega, sign_speed):
     return 0.5 * x * (3.0 - x * x)
 
 
-def _emit(k, o, mdl, inp, sg, temp_k, film_k, rec):
+def _emit(k: int, o: int, mdl: _Model, inp: _Inputs, sg: float, temp_k: float, film_k: float,
+          rec: _Record) -> None:
     """Write the outputs of sample ``k`` into column ``o`` of ``rec.outs`` (:data:`OUTPUT_COLUMNS`).
 
     The same formulas as :func:`clutch_ros.model.simulate.simulate`'s vectorised outputs;
@@ -274,7 +291,7 @@ def _emit(k, o, mdl, inp, sg, temp_k, film_k, rec):
             forces[o, i] = work[f0 + i]
 
 
-def _loop(steps, inp, mdl, rec):
+def _loop(steps: _Steps, inp: _Inputs, mdl: _Model, rec: _Record) -> tuple[float, float]:
     """Run steps 1..n-1 of simulate() (PackModel._advance per sample); return (film, temp).
 
     ``steps.mts``: the ZOH matrices transposed (size, n_state) per dt entry. Arrays of
@@ -360,7 +377,7 @@ def _loop(steps, inp, mdl, rec):
     return film, cur_temp
 
 
-def _lowpass(dts, u, tau, out):
+def _lowpass(dts: FloatArray, u: FloatArray, tau: float, out: FloatArray) -> None:
     """:func:`clutch_ros.model.slip.lowpass_series`'s loop (same float operations)."""
     y = u[0]
     out[0] = y
@@ -370,7 +387,8 @@ def _lowpass(dts, u, tau, out):
 
 
 # -- the Python side -------------------------------------------------------------------------
-def lowpass_series(t, u, time_constant: float, engine: str = "auto") -> np.ndarray:
+def lowpass_series(t: ArrayLike, u: ArrayLike, time_constant: float,
+                   engine: str = "auto") -> FloatArray:
     """Slip-speed low pass over a series, compiled (:func:`clutch_ros.model.slip.lowpass_series`).
 
     Same result as the numpy reference (to the last bit or two of ``expm1``); the engine
@@ -395,7 +413,7 @@ def lowpass_series(t, u, time_constant: float, engine: str = "auto") -> np.ndarr
     return out
 
 
-def _box_matrices(law, kind, table):
+def _box_matrices(law: Any, kind: int, table: Sequence[Any]) -> tuple[FloatArray, ...]:
     """Stacked per-dt matrices of the box laws: stick and normal transposed, G, Gᵀ, H."""
     if kind != _BOX:
         empty = np.zeros((len(table), 1, 1))
@@ -407,7 +425,7 @@ def _box_matrices(law, kind, table):
             np.ascontiguousarray(h))
 
 
-def _run(model, series, rec, engine):
+def _run(model: PackModel, series: Series, rec: _Record, engine: str) -> bool:
     """Call the compiled loop (see :func:`run_loop`); False when the numpy path must run.
 
     ``series``: :data:`Series`; ``rec``: the loop's outputs (``_Record``).
@@ -446,7 +464,7 @@ def _run(model, series, rec, engine):
     return True
 
 
-def _model_record(model, codes):
+def _model_record(model: PackModel, codes: tuple[int, int]) -> _Model:
     """Return the loop's ``_Model`` of ``model``: work vector (shared), indices, constants."""
     law, lay = model.law, model.layout
     fr_p, th_p, pk = model._fr, model.params.thermal, model.params.pack
@@ -467,7 +485,8 @@ def _model_record(model, codes):
     return _Model(model._work, idx, consts, fr, th, codes[0], codes[1], stuck, sigma)
 
 
-def run_loop(model, series, history, engine: str = "auto"):
+def run_loop(model: PackModel, series: Series, history: History,
+             engine: str = "auto") -> FloatArray | None:
     """Run :func:`~clutch_ros.model.simulate.simulate`'s steps 1..n-1 compiled.
 
     ``series``: :data:`Series`; ``history``: :data:`History`. Same effects as the numpy loop
@@ -486,7 +505,8 @@ def run_loop(model, series, history, engine: str = "auto"):
     return None
 
 
-def run_columns(model, series, columns, engine: str = "auto") -> bool:
+def run_columns(model: PackModel, series: Series, columns: Columns,
+                engine: str = "auto") -> bool:
     """Run the whole series compiled, writing only the outputs (no state history).
 
     ``series``: :data:`Series` (its ``sign`` is not used: the sign is computed in the loop).

@@ -14,6 +14,11 @@ functions in place (they stay plain Python, and correct, without numba).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # annotations only: this module stays plain Python for numba
+    from clutch_ros.model.arraytypes import BoolArray, FloatArray, IntArray
+
 __all__ = ["BOX", "BOX_FUNCTIONS", "COULOMB", "FF_T", "FF_V", "LINEAR", "NONE", "SCRATCH_ROWS",
            "SIGMA", "STUCK", "VISCOUS", "mat_vec"]
 
@@ -36,7 +41,8 @@ BOX_FUNCTIONS = ("mat_vec", "_lu_solve", "_box_forces", "_violations", "_gauss_s
                  "_box_solve", "_box_apply")
 
 
-def mat_vec(mt, e, w, wrow, ncols, nrows, out, orow):
+def mat_vec(mt: FloatArray, e: int, w: FloatArray, wrow: int, ncols: int, nrows: int,
+            out: FloatArray, orow: int) -> None:
     """``out[orow, r] = Σ_c mt[e, c, r] · w[wrow, c]`` for r < nrows (``mt[e]``: M transposed).
 
     Each sum runs in the order of c from 0.0, as ``acc += m[r, c] * w[c]`` would (same
@@ -65,7 +71,7 @@ def mat_vec(mt, e, w, wrow, ncols, nrows, out, orow):
         r += 1
 
 
-def _lu_solve(a, b, m):
+def _lu_solve(a: FloatArray, b: FloatArray, m: int) -> None:
     """Solve ``a[:m, :m] x = b[:m]`` in place (Gaussian elimination, partial pivoting)."""
     for k in range(m):
         p = k
@@ -91,7 +97,8 @@ def _lu_solve(a, b, m):
         b[k] = acc / a[k, k]
 
 
-def _box_forces(gm, e, n, fs, bb, ib, gss, st_row, sg_row, f_row):
+def _box_forces(gm: FloatArray, e: int, n: int, fs: FloatArray, bb: BoolArray, ib: IntArray,
+                gss: FloatArray, st_row: int, sg_row: int, f_row: int) -> None:
     """Write one active set's forces to ``fs[f_row]``: sliding at hi (σ > 0) or lo, stuck solved.
 
     The set is ``bb[st_row]`` (stuck) with sides ``fs[sg_row]``; ``gm[e]`` is G = ∂z⁺/∂f.
@@ -128,7 +135,8 @@ def _box_forces(gm, e, n, fs, bb, ib, gss, st_row, sg_row, f_row):
         fs[f_row, a] = fs[_FSTICK, a] - rhs[r]
 
 
-def _violations(gt, e, n, fs, bb, st_row, sg_row, f_row):
+def _violations(gt: FloatArray, e: int, n: int, fs: FloatArray, bb: BoolArray, st_row: int,
+                sg_row: int, f_row: int) -> bool:
     """Mark the set's violated conditions (``bb`` rows); return True if any (``gt``: Gᵀ)."""
     for j in range(n):
         fs[_V, j] = fs[f_row, j] - fs[_FSTICK, j]
@@ -155,7 +163,7 @@ def _violations(gt, e, n, fs, bb, st_row, sg_row, f_row):
     return anybad
 
 
-def _gauss_seidel(hm, e, n, fs):
+def _gauss_seidel(hm: FloatArray, e: int, n: int, fs: FloatArray) -> None:
     """Projected Gauss-Seidel on the box QP (converges for any SPD H) into ``fs[_F]``."""
     fmax = 0.0
     for i in range(n):
@@ -175,7 +183,8 @@ def _gauss_seidel(hm, e, n, fs):
             break
 
 
-def _box_solve(gm, gt, hm, e, n, fs, bb, ib, gss):
+def _box_solve(gm: FloatArray, gt: FloatArray, hm: FloatArray, e: int, n: int, fs: FloatArray,
+               bb: BoolArray, ib: IntArray, gss: FloatArray) -> None:
     """Projection onto the box from the warm set (updated in place); forces into ``fs[_F]``."""
     for _ in range(_MAX_ACTIVE_SET_ITERATIONS):
         _box_forces(gm, e, n, fs, bb, ib, gss, STUCK, SIGMA, _F)
@@ -202,7 +211,10 @@ def _box_solve(gm, gt, hm, e, n, fs, bb, ib, gss):
         fs[SIGMA, i] = fs[_TSIGMA, i]
 
 
-def _box_apply(variant, work, lay, torque, scale, gain, box, e, scratch):
+def _box_apply(variant: int, work: FloatArray, lay: tuple[int, int, int, int], torque: float,
+               scale: float, gain: float,
+               box: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray], e: int,
+               scratch: tuple[FloatArray, BoolArray, IntArray, FloatArray]) -> None:
     """Held spline forces of the box laws (coulomb, passive ff_t / ff_v) into ``work``.
 
     ``lay`` = (head, s0, f0, nlam): the work vector's head length, first law state, first

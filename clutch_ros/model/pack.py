@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from clutch_ros.model.arraytypes import FloatArray
 from clutch_ros.model.errors import InputError, NonFiniteSample
 from clutch_ros.model.film import film_equilibrium, film_step, thermal_step
 from clutch_ros.model.friction import mu_scalar, sign_scalar
@@ -132,9 +133,30 @@ class _Layout:
 
 
 class _Entry:
-    """Discretisation at one (quantised) dt: ``M = [Φ | Γ]`` acting on the work vector."""
+    """Discretisation at one (quantised) dt: ``M = [Φ | Γ]`` acting on the work vector.
 
-    def __init__(self, dt, layout, m, spring_matrix):
+    The spline laws' :meth:`~clutch_ros.model.spline.SplineLaw.prepare` adds their per-dt
+    matrices (declared below; only the law's own are set).
+    """
+
+    # CoulombLaw.prepare (model/spline.py)
+    coulomb_stick: FloatArray
+    coulomb_normal: FloatArray
+    coulomb_load: FloatArray
+    coulomb_g: FloatArray
+    coulomb_h: FloatArray
+    coulomb_hdiag: FloatArray
+    coulomb_sets: dict[tuple[bytes, bytes], tuple[FloatArray, ...]]
+    coulomb_blocks: dict[tuple[bytes, bytes], tuple[FloatArray, ...]]
+    # PassiveLaw.prepare (model/spline_passive.py)
+    passive_stick: FloatArray
+    passive_normal: FloatArray
+    passive_g: FloatArray
+    passive_h: FloatArray
+    passive_solves: dict[bytes, FloatArray]
+
+    def __init__(self, dt: float, layout: _Layout, m: FloatArray,
+                 spring_matrix: FloatArray) -> None:
         self.dt = dt
         self.layout = layout
         self.M = m

@@ -51,8 +51,20 @@ lamella) and the scheme does not depend on dt.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+from clutch_ros.model.arraytypes import BoolArray, FloatArray
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from clutch_ros.model.pack import _Entry, _Layout
+    from clutch_ros.model.params import ClutchParams
+
+#: a law's active set: stuck mask and slide sides (σ = ±1)
+WarmState = tuple[BoolArray, FloatArray]
 
 __all__ = ["SplineLaw", "NoSplineFriction", "TorqueFilterLaw", "ViscousLaw", "CoulombLaw"]
 
@@ -78,39 +90,40 @@ class SplineLaw:
     acts_per_step = False  # True: apply() does work before every step
     states_scale_with_gain = False  # True: the states are κ times a gain-free filter
 
-    def __init__(self, params):
+    def __init__(self, params: ClutchParams) -> None:
         self.params = params
         self.lamella_count = params.pack.lamella_count
 
-    def fill(self, a_full, b_full, x_full, n_pack: int) -> None:
+    def fill(self, a_full: FloatArray, b_full: FloatArray, x_full: FloatArray,
+             n_pack: int) -> None:
         """Add the law's rows to the continuous (A, B) and static-gain matrices."""
 
-    def prepare(self, entry) -> None:
+    def prepare(self, entry: _Entry) -> None:
         """Precompute per-dt quantities on the cache ``entry`` (has ``M``, ``dt``)."""
 
-    def bind(self, work: np.ndarray, layout) -> None:
+    def bind(self, work: FloatArray, layout: _Layout) -> None:
         """Keep views into the pack's work vector (``layout`` gives the slices)."""
         self._work = work
         self._f = work[layout.forces]
         self._s = work[layout.law_states]
         self._head = work[:layout.head]
 
-    def equilibrium(self, torque: float) -> np.ndarray:
+    def equilibrium(self, torque: float) -> FloatArray:
         """Return the law states at rest under a constant torque T [N m]."""
         return np.zeros(self.n_states)
 
-    def apply(self, entry, torque: float, mu_load: float) -> None:
+    def apply(self, entry: _Entry, torque: float, mu_load: float) -> None:
         """Write the forces held over the next step into the work vector.
 
         ``torque`` is T [N m] at the start of the step; ``mu_load`` = μ |s(ω)|.
         """
 
-    def current_forces(self) -> np.ndarray:
+    def current_forces(self) -> FloatArray:
         """Return the spline forces of the last step, rear → front [N] (a copy)."""
         return self._f.copy()
 
-    def forces_series(self, prev_states: np.ndarray, states: np.ndarray,
-                      torque: np.ndarray) -> np.ndarray:
+    def forces_series(self, prev_states: FloatArray, states: FloatArray,
+                      torque: FloatArray) -> FloatArray:
         """Return what :meth:`current_forces` gives after steps 1..n-1 (vectorised).
 
         ``prev_states``/``states``: law states before/after each step (n-1, n_states);
@@ -118,11 +131,11 @@ class SplineLaw:
         """
         return np.zeros((torque.size, self.lamella_count))
 
-    def warm_state(self):
+    def warm_state(self) -> WarmState | None:
         """Return the law's non-vector state (for snapshots); None if it has none."""
         return None
 
-    def set_warm_state(self, value) -> None:
+    def set_warm_state(self, value: WarmState | None) -> None:
         """Restore what :meth:`warm_state` returned."""
 
 
@@ -143,12 +156,13 @@ class TorqueFilterLaw(SplineLaw):
     has_force = True
     states_scale_with_gain = True
 
-    def __init__(self, params):
+    def __init__(self, params: ClutchParams) -> None:
         super().__init__(params)
         self.gain = params.spline.gain
         self.tau = params.spline.time_constant
 
-    def fill(self, a_full, b_full, x_full, n_pack):
+    def fill(self, a_full: FloatArray, b_full: FloatArray, x_full: FloatArray,
+             n_pack: int) -> None:
         """τ ẏ = κ T − y, and every lamella feels −(κ T − y); at rest y = κ T, no force."""
         a_full[n_pack, n_pack] = -1.0 / self.tau
         b_full[n_pack, 1] = self.gain / self.tau
@@ -159,11 +173,11 @@ class TorqueFilterLaw(SplineLaw):
         b_full[:, 2:] = 0.0  # the held-force inputs are unused by this law
         x_full[:, 2:] = 0.0
 
-    def equilibrium(self, torque):
+    def equilibrium(self, torque: float) -> FloatArray:
         """At rest y = κ T (no force)."""
         return np.array([self.gain * torque])
 
-    def prepare(self, entry):
+    def prepare(self, entry: _Entry) -> None:
         """Write the filter row in closed form: y⁺ = e y + (1 − e) κ T, e = e^{−dt/τ}.
 
         The row does not depend on the pack, so this is the exact ZOH; the expm of the whole
@@ -176,23 +190,24 @@ class TorqueFilterLaw(SplineLaw):
         row[lay.n_pack] = decay
         row[lay.i_torque] = -math.expm1(-entry.dt / self.tau) * self.gain
 
-    def bind(self, work, layout):
+    def bind(self, work: FloatArray, layout: _Layout) -> None:
         """Also keep the index of T."""
         super().bind(work, layout)
         self._i_torque = layout.i_torque
 
-    def current_forces(self):
+    def current_forces(self) -> FloatArray:
         """F_f = κ T − y at the end of the last step, on every lamella [N]."""
         return np.full(self.lamella_count,
                        self.gain * self._work[self._i_torque] - self._s[0])
 
-    def forces_series(self, prev_states, states, torque):
+    def forces_series(self, prev_states: FloatArray, states: FloatArray,
+                      torque: FloatArray) -> FloatArray:
         """Vectorised :meth:`current_forces`."""
         f = self.gain * torque - states[:, 0]
         return np.repeat(f[:, None], self.lamella_count, axis=1)
 
     @staticmethod
-    def step_response(gain: float, tau: float, torque: float, t):
+    def step_response(gain: float, tau: float, torque: float, t: ArrayLike) -> FloatArray:
         """Return the force after a torque step 0 → T at t = 0: κ T e^{−t/τ} [N] (closed form)."""
         return gain * torque * np.exp(-np.asarray(t, dtype=float) / tau)
 
@@ -204,23 +219,25 @@ class ViscousLaw(SplineLaw):
     has_force = True
     acts_per_step = True
 
-    def __init__(self, params):
+    def __init__(self, params: ClutchParams) -> None:
         super().__init__(params)
         self.gain = params.spline.gain
         self.tau = params.spline.time_constant
         self.n_states = self.lamella_count
 
-    def fill(self, a_full, b_full, x_full, n_pack):
+    def fill(self, a_full: FloatArray, b_full: FloatArray, x_full: FloatArray,
+             n_pack: int) -> None:
         """Rows of w_n: τ ẇ_n = ż_n − w_n."""
         for i in range(self.lamella_count):
             a_full[n_pack + i, 2 * i + 1] = 1.0 / self.tau
             a_full[n_pack + i, n_pack + i] = -1.0 / self.tau
 
-    def apply(self, entry, torque, mu_load):
+    def apply(self, entry: _Entry, torque: float, mu_load: float) -> None:
         """F_fn = κ T w_n."""
         np.multiply(self._s, self.gain * torque, out=self._f)
 
-    def forces_series(self, prev_states, states, torque):
+    def forces_series(self, prev_states: FloatArray, states: FloatArray,
+                      torque: FloatArray) -> FloatArray:
         """Vectorised :meth:`apply` (same float operations)."""
         return prev_states * (self.gain * torque)[:, None]
 
@@ -235,19 +252,19 @@ class CoulombLaw(SplineLaw):
     max_active_set_iterations = 64
     max_gauss_seidel_sweeps = 10000
 
-    def __init__(self, params):
+    def __init__(self, params: ClutchParams) -> None:
         super().__init__(params)
         sp, pk = params.spline, params.pack
         #: a = coef · μ |s(ω)|
         self.coef = sp.friction_coefficient * pk.effective_radius / sp.radius
         n = self.lamella_count
-        self._stuck = np.ones(n, dtype=bool)
-        self._sigma = np.ones(n)
-        self._mats_entry = None
-        self._mats = None
+        self._stuck: BoolArray = np.ones(n, dtype=bool)
+        self._sigma: FloatArray = np.ones(n)
+        self._mats_entry: _Entry | None = None
+        self._mats: tuple[FloatArray, ...] | None = None
         self.iterations = 0  # active-set iterations of the last step (diagnostics)
 
-    def prepare(self, entry):
+    def prepare(self, entry: _Entry) -> None:
         """Stick-force and position-sensitivity matrices for this dt."""
         n = self.lamella_count
         m = entry.M
@@ -271,21 +288,21 @@ class CoulombLaw(SplineLaw):
         entry.coulomb_blocks = {}
 
     @staticmethod
-    def box_matrices(entry):
+    def box_matrices(entry: _Entry) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """Stick-force, normal-force, G and H matrices of ``entry`` (the compiled box loop)."""
         return entry.coulomb_stick, entry.coulomb_normal, entry.coulomb_g, entry.coulomb_h
 
-    def bind(self, work, layout):
+    def bind(self, work: FloatArray, layout: _Layout) -> None:
         """Also keep the index of F_act and the [1, a] mixing vector."""
         super().bind(work, layout)
         self._i_force = layout.i_force
         self._mix = np.array([1.0, 0.0])
 
-    def warm_state(self):
+    def warm_state(self) -> WarmState:
         """Active set of the last step (stuck mask, slide directions)."""
         return (self._stuck.copy(), self._sigma.copy())
 
-    def set_warm_state(self, value):
+    def set_warm_state(self, value: WarmState | None) -> None:
         """Restore the active set."""
         if value is None:
             value = (np.ones(self.lamella_count, dtype=bool), np.ones(self.lamella_count))
@@ -293,7 +310,8 @@ class CoulombLaw(SplineLaw):
         self._sigma = value[1].copy()
         self._mats_entry = None
 
-    def _set_matrices(self, entry, stuck, sigma):
+    def _set_matrices(self, entry: _Entry, stuck: BoolArray,
+                      sigma: FloatArray) -> tuple[FloatArray, ...]:
         """Fused kernel of one active set (stuck mask, slide signs) at one dt.
 
         With ``y = [f_stick; b]``, ``f_stick = K w``, ``b = a L w`` (w = work head): the
@@ -320,7 +338,8 @@ class CoulombLaw(SplineLaw):
                 a1[np.ix_(st, sl)] = r
                 a2[np.ix_(st, sl)] = -r * sigma[sl]
         dz1, dz2 = g @ (a1 - eye), g @ a2  # displacement over the step = dz1 f_stick + dz2 b
-        rows1, rows2 = [], []
+        rows1: list[FloatArray] = []
+        rows2: list[FloatArray] = []
         for i in st:
             rows1 += [-a1[i], a1[i]]  # b - f >= 0, b + f >= 0
             rows2 += [eye[i] - a2[i], eye[i] + a2[i]]
@@ -339,7 +358,7 @@ class CoulombLaw(SplineLaw):
             entry.coulomb_sets[key] = mats
         return mats
 
-    def block_kernel(self, entry):
+    def block_kernel(self, entry: _Entry) -> tuple[FloatArray, ...]:
         """Step map and checks of the current active set at ``entry`` (for batch runs).
 
         Returns ``(Z, P_c, Q_c, P_f, Q_f)`` on the work vector ``r = [w, F_f]`` (w = work
@@ -369,17 +388,18 @@ class CoulombLaw(SplineLaw):
             entry.coulomb_blocks[key] = kern
         return kern
 
-    def apply(self, entry, torque, mu_load):
+    def apply(self, entry: _Entry, torque: float, mu_load: float) -> None:
         """Solve the stick/slip step; write F_f (module docstring)."""
         scale = self.coef * mu_load
         if scale <= 0.0:  # no transmitted torque, no spline load: frictionless
             self._f.fill(0.0)
             return
         self.iterations = 0
-        if self._mats_entry is not entry:
-            self._mats = self._set_matrices(entry, self._stuck, self._sigma)
+        mats = self._mats
+        if self._mats_entry is not entry or mats is None:  # (set together)
+            mats = self._mats = self._set_matrices(entry, self._stuck, self._sigma)
             self._mats_entry = entry
-        zmat, out2d, out_flat, res, cond, forces = self._mats
+        zmat, out2d, out_flat, res, cond, forces = mats
         np.dot(zmat, self._head, out=out_flat)
         self._mix[1] = scale
         np.dot(self._mix, out2d, out=res)
@@ -392,7 +412,8 @@ class CoulombLaw(SplineLaw):
         self._f[:] = self._solve(entry, entry.coulomb_stick.dot(head), bound)
 
     @staticmethod
-    def _forces(entry, f_stick, bound, stuck, sigma):
+    def _forces(entry: _Entry, f_stick: FloatArray, bound: FloatArray, stuck: BoolArray,
+                sigma: FloatArray) -> FloatArray:
         f = sigma * bound
         st = np.flatnonzero(stuck)
         if st.size == 0:
@@ -405,7 +426,7 @@ class CoulombLaw(SplineLaw):
         f[st] = f_stick[st] - np.linalg.solve(g[np.ix_(st, st)], rhs)
         return f
 
-    def _solve(self, entry, f_stick, bound):
+    def _solve(self, entry: _Entry, f_stick: FloatArray, bound: FloatArray) -> FloatArray:
         stuck = self._stuck.copy()
         sigma = self._sigma.copy()
         scale = float(np.abs(f_stick).max()) + float(bound.max()) + 1.0
@@ -430,7 +451,8 @@ class CoulombLaw(SplineLaw):
         self._remember(stuck, sigma)
         return f
 
-    def _gauss_seidel(self, entry, f_stick, bound):
+    def _gauss_seidel(self, entry: _Entry, f_stick: FloatArray,
+                      bound: FloatArray) -> FloatArray:
         """Projected Gauss-Seidel on the box QP, then polished on its active set.
 
         PGS converges for any symmetric positive definite H; the active set it identifies
@@ -458,7 +480,7 @@ class CoulombLaw(SplineLaw):
               and np.all(sigma[~stuck] * dz[~stuck] >= -1e-12 * (np.abs(dz).max() + 1e-15)))
         return polished if ok else f
 
-    def _remember(self, stuck, sigma):
+    def _remember(self, stuck: BoolArray, sigma: FloatArray) -> None:
         self._stuck = stuck
         self._sigma = sigma
         self._mats_entry = None
