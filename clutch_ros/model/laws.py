@@ -22,9 +22,10 @@ thesis's Eqs. 29-30 as printed (not passive, for reproducing the thesis only).
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from operator import attrgetter
+from typing import Any, overload
 
 from clutch_ros.model import kernel_box
 from clutch_ros.model.errors import UnknownLawError
@@ -63,7 +64,7 @@ class SplineLawInfo:
     """
 
     name: str
-    law_class: type | str
+    law_class: type[Any] | str
     passive: bool
     kernel: tuple[int, int] | None = None
     gain_unit: str | None = None
@@ -79,11 +80,12 @@ class SplineLawInfo:
         """True when ``spline.gain`` is the law's gain (it has a unit)."""
         return self.gain_unit is not None
 
-    def load(self) -> type:
+    def load(self) -> type[Any]:
         """Return the law's class (imports its module the first time)."""
         if isinstance(self.law_class, str):
             module, _, attr = self.law_class.partition(":")
-            return getattr(importlib.import_module(module), attr)
+            cls: type[Any] = getattr(importlib.import_module(module), attr)
+            return cls
         return self.law_class
 
 
@@ -117,34 +119,43 @@ def law_names(where: str | Callable[[SplineLawInfo], object] | None = None) -> t
     return tuple(n for n, info in _REGISTRY.items() if where is None or where(info))
 
 
-def make_spline_law(params):
+# Typed loosely on purpose: the registry sits below params (ClutchParams) and the law classes
+# (SplineLaw), which read it; naming them here would close an import cycle. PackModel
+# annotates the law it gets.
+def make_spline_law(params: Any) -> Any:
     """Return a fresh law object for ``params.spline.law`` (one per PackModel)."""
     return law_info(params.spline.law).load()(params)
 
 
-class LawNames(Sequence):
+class LawNames(Sequence[str]):
     """A live, read-only tuple of the registered law names whose field ``where`` is truthy.
 
     Compares equal to a tuple of the same names; a law registered later appears in it.
     ``where``: a field name of :class:`SplineLawInfo` (None: every law). Picklable.
     """
 
-    def __init__(self, where: str | None = None):
+    def __init__(self, where: str | None = None) -> None:
         self._where = where
 
     def _names(self) -> tuple[str, ...]:
         return law_names(self._where)
 
-    def __getitem__(self, index):
+    @overload
+    def __getitem__(self, index: int) -> str: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> tuple[str, ...]: ...
+
+    def __getitem__(self, index: int | slice) -> str | tuple[str, ...]:
         return self._names()[index]
 
     def __len__(self) -> int:
         return len(self._names())
 
-    def __contains__(self, name) -> bool:
+    def __contains__(self, name: object) -> bool:
         return isinstance(name, str) and name in self._names()
 
-    def __eq__(self, other) -> bool:
+    def __eq__(self, other: object) -> bool:
         if isinstance(other, (LawNames, tuple, list)):
             return self._names() == tuple(other)
         return NotImplemented
@@ -156,22 +167,22 @@ class LawNames(Sequence):
         return repr(self._names())
 
 
-class LawTable(Mapping):
+class LawTable(Mapping[str, Any]):
     """A live, read-only ``{law name: info.<field>}`` mapping over the registry.
 
     ``where``: as for :class:`LawNames` (the laws whose field ``where`` is truthy). Picklable.
     """
 
-    def __init__(self, field: str, where: str | None = None):
+    def __init__(self, field: str, where: str | None = None) -> None:
         self._field = field
         self._where = where
 
-    def __getitem__(self, name):
+    def __getitem__(self, name: str) -> Any:
         if not isinstance(name, str) or name not in law_names(self._where):
             raise KeyError(name)
         return getattr(_REGISTRY[name], self._field)
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[str]:
         return iter(law_names(self._where))
 
     def __len__(self) -> int:

@@ -41,10 +41,12 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from clutch_ros.model.arraytypes import FloatArray
+from clutch_ros.model.discretisation import _Entry, _Layout
 from clutch_ros.model.errors import InputError, NonFiniteSample
 from clutch_ros.model.film import film_equilibrium, film_step, thermal_step
 from clutch_ros.model.friction import mu_scalar, sign_scalar
@@ -55,6 +57,10 @@ from clutch_ros.model.statespace import (
     static_gain,
     zoh_discretize,
 )
+
+if TYPE_CHECKING:
+    from clutch_ros.model.params import ClutchParams
+    from clutch_ros.model.spline import SplineLaw, WarmState
 
 __all__ = ["PackModel", "PackSample", "PackState"]
 
@@ -102,8 +108,8 @@ class PackState:
 
     lamella_count: int
     law: str
-    work: np.ndarray
-    warm: object = None
+    work: FloatArray
+    warm: WarmState | None = None
     film: float = 1.0
     temperature: float = 35.0
 
@@ -118,51 +124,6 @@ class PackState:
         return self.work[1:2 * self.lamella_count:2].copy()
 
 
-@dataclass(frozen=True)
-class _Layout:
-    lamella_count: int
-    n_pack: int
-    n_state: int
-    head: int
-    size: int
-    forces: slice
-    law_states: slice
-    i_force: int
-    i_torque: int
-    i_front: int
-
-
-class _Entry:
-    """Discretisation at one (quantised) dt: ``M = [Φ | Γ]`` acting on the work vector.
-
-    The spline laws' :meth:`~clutch_ros.model.spline.SplineLaw.prepare` adds their per-dt
-    matrices (declared below; only the law's own are set).
-    """
-
-    # CoulombLaw.prepare (model/spline.py)
-    coulomb_stick: FloatArray
-    coulomb_normal: FloatArray
-    coulomb_load: FloatArray
-    coulomb_g: FloatArray
-    coulomb_h: FloatArray
-    coulomb_hdiag: FloatArray
-    coulomb_sets: dict[tuple[bytes, bytes], tuple[FloatArray, ...]]
-    coulomb_blocks: dict[tuple[bytes, bytes], tuple[FloatArray, ...]]
-    # PassiveLaw.prepare (model/spline_passive.py)
-    passive_stick: FloatArray
-    passive_normal: FloatArray
-    passive_g: FloatArray
-    passive_h: FloatArray
-    passive_solves: dict[bytes, FloatArray]
-
-    def __init__(self, dt: float, layout: _Layout, m: FloatArray,
-                 spring_matrix: FloatArray) -> None:
-        self.dt = dt
-        self.layout = layout
-        self.M = m
-        self.spring_matrix = spring_matrix
-
-
 class PackModel:
     """N-lamella pack with a spline-friction law; see the module docstring.
 
@@ -173,7 +134,13 @@ class PackModel:
 
     """
 
-    def __init__(self, params, *, dt_resolution: float = 1e-5, cache_size: int = 256):
+    # discretisation cache: key (dt in units of dt_resolution, or dt itself) -> entry
+    _cache: OrderedDict[float, _Entry]
+    _last_key: float | None
+    _last_entry: _Entry | None
+
+    def __init__(self, params: ClutchParams, *, dt_resolution: float = 1e-5,
+                 cache_size: int = 256) -> None:
         if not (dt_resolution >= 0.0 and math.isfinite(dt_resolution)):
             raise InputError(f"dt_resolution must be finite and >= 0, got {dt_resolution!r}")
         self.dt_resolution = float(dt_resolution)
@@ -182,7 +149,7 @@ class PackModel:
         self.reset()
 
     # -- construction -----------------------------------------------------------------
-    def _configure(self, params) -> None:
+    def _configure(self, params: ClutchParams) -> None:
         old = self.__dict__.get("params")
         # the discretisation (and the law's per-dt matrices) depends on the pack and the
         # spline law only: new friction or thermal parameters (the adaptation's friction
@@ -194,7 +161,7 @@ class PackModel:
         self.params = params
         pk, fr = params.pack, params.friction
         n = pk.lamella_count
-        law = make_spline_law(params)
+        law: SplineLaw = make_spline_law(params)
         ns = law.n_states
         n_pack = 2 * n
         nx = n_pack + ns
@@ -220,7 +187,7 @@ class PackModel:
         self._xview = self._work[:nx]
         self._zview = self._work[:n_pack]
         law.bind(self._work, layout)
-        self._cache: OrderedDict[int, _Entry] = OrderedDict()
+        self._cache = OrderedDict()
         self._last_key = None
         self._last_entry = None
         if kept is not None:
@@ -239,8 +206,9 @@ class PackModel:
         """Return the cached discretisation for ``dt`` [s] (``M = [Φ | Γ]``, see statespace)."""
         res = self.dt_resolution
         key = max(1, round(dt / res)) if res > 0.0 else dt
-        if key == self._last_key:
-            return self._last_entry
+        last = self._last_entry
+        if key == self._last_key and last is not None:  # (set together)
+            return last
         entry = self._cache.get(key)
         if entry is not None:
             self._cache.move_to_end(key)  # least recently used is evicted first
@@ -310,7 +278,7 @@ class PackModel:
         other.restore(self.state)
         return other
 
-    def set_params(self, params) -> None:
+    def set_params(self, params: ClutchParams) -> None:
         """Apply new parameters, keeping the state when N (and so its shape) is unchanged.
 
         Pack positions/velocities, film and thermal state are kept; the law's states are kept
@@ -335,8 +303,10 @@ class PackModel:
         if self.law.name == old_law.name:
             w[lay.law_states] = old_state[old_layout.law_states]
             w[lay.forces] = old_state[old_layout.forces]
-            if self.law.states_scale_with_gain and old_law.gain > 0.0:
-                w[lay.law_states] *= self.law.gain / old_law.gain
+            # the laws whose states scale with κ have a gain (the others no attribute)
+            old_gain = getattr(old_law, "gain", 0.0)
+            if self.law.states_scale_with_gain and old_gain > 0.0:
+                w[lay.law_states] *= getattr(self.law, "gain", 0.0) / old_gain
             self.law.set_warm_state(old_law.warm_state())
         else:
             w[lay.law_states] = self.law.equilibrium(torque)

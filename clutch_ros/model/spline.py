@@ -60,7 +60,7 @@ from clutch_ros.model.arraytypes import BoolArray, FloatArray
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
-    from clutch_ros.model.pack import _Entry, _Layout
+    from clutch_ros.model.discretisation import _Entry, _Layout
     from clutch_ros.model.params import ClutchParams
 
 #: a law's active set: stuck mask and slide sides (σ = ±1)

@@ -49,11 +49,17 @@ side), with projected Gauss-Seidel as the guaranteed fallback; the small functio
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from clutch_ros.model.arraytypes import BoolArray, FloatArray
 from clutch_ros.model.laws import make_spline_law  # re-exported (defined with the registry)
-from clutch_ros.model.spline import SplineLaw
+from clutch_ros.model.spline import SplineLaw, WarmState
+
+if TYPE_CHECKING:
+    from clutch_ros.model.discretisation import _Entry, _Layout
+    from clutch_ros.model.params import ClutchParams
 
 __all__ = ["box_forces", "solve_box", "PassiveLaw", "PassiveTorqueFilterLaw",
            "PassiveViscousLaw", "PASSIVE_FILTER_LAWS", "make_spline_law"]
@@ -62,7 +68,9 @@ MAX_ACTIVE_SET_ITERATIONS = 64
 MAX_GAUSS_SEIDEL_SWEEPS = 10000
 
 
-def box_forces(g, f_stick, lo, hi, stuck, sigma, solves=None):
+def box_forces(g: FloatArray, f_stick: FloatArray, lo: FloatArray, hi: FloatArray,
+               stuck: BoolArray, sigma: FloatArray,
+               solves: dict[bytes, FloatArray] | None = None) -> FloatArray:
     """Return the forces of one active set: sliding at ``hi`` (σ > 0) or ``lo``, stuck solved.
 
     ``g`` (N, N) = ∂z⁺/∂f; ``f_stick`` (N,) the all-stuck force [N]; ``stuck`` boolean mask;
@@ -85,7 +93,9 @@ def box_forces(g, f_stick, lo, hi, stuck, sigma, solves=None):
     return f
 
 
-def _violations(g, f_stick, f, lo, hi, stuck, sigma):
+def _violations(g: FloatArray, f_stick: FloatArray, f: FloatArray, lo: FloatArray,
+                hi: FloatArray, stuck: BoolArray,
+                sigma: FloatArray) -> tuple[BoolArray, BoolArray]:
     dz = g.dot(f - f_stick)
     scale = float(np.abs(f_stick).max()) + float((hi - lo).max()) + 1.0
     tol_f = 1e-12 * scale
@@ -95,7 +105,10 @@ def _violations(g, f_stick, f, lo, hi, stuck, sigma):
     return bad_stuck, bad_slide
 
 
-def solve_box(g, h, f_stick, lo, hi, stuck, sigma, solves=None):
+def solve_box(g: FloatArray, h: FloatArray, f_stick: FloatArray, lo: FloatArray,
+              hi: FloatArray, stuck: BoolArray, sigma: FloatArray,
+              solves: dict[bytes, FloatArray] | None = None,
+              ) -> tuple[FloatArray, BoolArray, FloatArray, int]:
     """Return ``(f, stuck, sigma, iterations)``: the box projection (module docstring).
 
     ``h`` = −(G + Gᵀ)/2; ``stuck``/``sigma`` are the warm start (not modified). Iterations −1
@@ -121,7 +134,8 @@ def solve_box(g, h, f_stick, lo, hi, stuck, sigma, solves=None):
     return f, stuck, sigma, -1
 
 
-def _gauss_seidel(h, f_stick, lo, hi):
+def _gauss_seidel(h: FloatArray, f_stick: FloatArray, lo: FloatArray,
+                  hi: FloatArray) -> FloatArray:
     """Projected Gauss-Seidel on the box QP (converges for any SPD H)."""
     hd = np.diag(h)
     f = np.clip(f_stick, lo, hi)
@@ -145,18 +159,18 @@ class PassiveLaw(SplineLaw):
     records_forces = True
     acts_per_step = True
 
-    def __init__(self, params):
+    def __init__(self, params: ClutchParams) -> None:
         super().__init__(params)
         sp, pk = params.spline, params.pack
         self.gain = sp.gain
         self.tau = sp.time_constant
         self.coef = sp.friction_coefficient * pk.effective_radius / sp.radius
         n = self.lamella_count
-        self._stuck = np.zeros(n, dtype=bool)
-        self._sigma = np.ones(n)
+        self._stuck: BoolArray = np.zeros(n, dtype=bool)
+        self._sigma: FloatArray = np.ones(n)
         self.iterations = 0
 
-    def prepare(self, entry):
+    def prepare(self, entry: _Entry) -> None:
         """Stick force ``K w`` and sensitivity ``G`` at this dt (as the coulomb law's)."""
         n = self.lamella_count
         m = entry.M
@@ -175,26 +189,26 @@ class PassiveLaw(SplineLaw):
         entry.passive_solves = {}
 
     @staticmethod
-    def box_matrices(entry):
+    def box_matrices(entry: _Entry) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """Stick-force, normal-force, G and H matrices of ``entry`` (the compiled box loop)."""
         return entry.passive_stick, entry.passive_normal, entry.passive_g, entry.passive_h
 
-    def warm_state(self):
+    def warm_state(self) -> WarmState:
         """Active set of the last step (stuck mask, side)."""
         return (self._stuck.copy(), self._sigma.copy())
 
-    def set_warm_state(self, value):
+    def set_warm_state(self, value: WarmState | None) -> None:
         """Restore the active set (None: all sliding on the upper side)."""
         if value is None:
             value = (np.zeros(self.lamella_count, dtype=bool), np.ones(self.lamella_count))
         self._stuck = value[0].copy()
         self._sigma = value[1].copy()
 
-    def desired(self, torque: float) -> np.ndarray:
+    def desired(self, torque: float) -> FloatArray:
         """Return the printed law's force at the start of the step [N] (N,)."""
         raise NotImplementedError
 
-    def apply(self, entry, torque, mu_load):
+    def apply(self, entry: _Entry, torque: float, mu_load: float) -> None:
         """Project the printed force onto the passive set (module docstring); write F_f."""
         scale = self.coef * mu_load
         des = self.desired(torque)
@@ -243,17 +257,18 @@ class PassiveTorqueFilterLaw(PassiveLaw):
     n_states = 1
     states_scale_with_gain = True
 
-    def fill(self, a_full, b_full, x_full, n_pack):
+    def fill(self, a_full: FloatArray, b_full: FloatArray, x_full: FloatArray,
+             n_pack: int) -> None:
         """τ ẏ = κ T − y; the held forces enter the pack through its force columns."""
         a_full[n_pack, n_pack] = -1.0 / self.tau
         b_full[n_pack, 1] = self.gain / self.tau
         x_full[n_pack, 1] = self.gain
 
-    def equilibrium(self, torque):
+    def equilibrium(self, torque: float) -> FloatArray:
         """At rest y = κ T (no force)."""
         return np.array([self.gain * torque])
 
-    def prepare(self, entry):
+    def prepare(self, entry: _Entry) -> None:
         """Closed-form filter row (exact ZOH), then the projection matrices."""
         lay = entry.layout
         row = entry.M[lay.n_pack]
@@ -262,13 +277,13 @@ class PassiveTorqueFilterLaw(PassiveLaw):
         row[lay.i_torque] = -math.expm1(-entry.dt / self.tau) * self.gain
         super().prepare(entry)
 
-    def bind(self, work, layout):
+    def bind(self, work: FloatArray, layout: _Layout) -> None:
         """Keep the filter state's index."""
         super().bind(work, layout)
         self._i_y = layout.n_pack
         self._buf = np.empty(self.lamella_count)
 
-    def desired(self, torque):
+    def desired(self, torque: float) -> FloatArray:
         """κ T − y on every lamella [N]."""
         self._buf.fill(self.gain * torque - self._work.item(self._i_y))
         return self._buf
@@ -283,17 +298,18 @@ class PassiveViscousLaw(PassiveLaw):
 
     name = "ff_v"
 
-    def __init__(self, params):
+    def __init__(self, params: ClutchParams) -> None:
         super().__init__(params)
         self.n_states = self.lamella_count
 
-    def fill(self, a_full, b_full, x_full, n_pack):
+    def fill(self, a_full: FloatArray, b_full: FloatArray, x_full: FloatArray,
+             n_pack: int) -> None:
         """Rows of w_n: τ ẇ_n = ż_n − w_n."""
         for i in range(self.lamella_count):
             a_full[n_pack + i, 2 * i + 1] = 1.0 / self.tau
             a_full[n_pack + i, n_pack + i] = -1.0 / self.tau
 
-    def desired(self, torque):
+    def desired(self, torque: float) -> FloatArray:
         """κ T w_n [N]."""
         return self._s * (self.gain * torque)
 
