@@ -55,6 +55,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -62,6 +63,9 @@ from clutch_ros.model.errors import ModelError
 from clutch_ros.model.estimator import ClutchEstimator, Estimate
 from clutch_ros.model.inverse import capacity_scalar
 from clutch_ros.model.laws import LawNames
+
+if TYPE_CHECKING:
+    from clutch_ros.model.params import ClutchParams
 
 __all__ = ["AdaptationSettings", "AdaptationStatus", "AdaptiveEstimate", "AdaptiveEstimator",
            "ParameterFilter", "GAIN_LAWS", "fork_estimator", "scaled_params"]
@@ -71,7 +75,8 @@ __all__ = ["AdaptationSettings", "AdaptationStatus", "AdaptiveEstimate", "Adapti
 GAIN_LAWS = LawNames("adapts_gain")
 
 
-def fork_estimator(estimator: ClutchEstimator, params=None, **kwargs) -> ClutchEstimator:
+def fork_estimator(estimator: ClutchEstimator, params: ClutchParams=None,
+                   **kwargs) -> ClutchEstimator:
     """Return an independent :class:`ClutchEstimator` in the same state as ``estimator``.
 
     Pack state (:meth:`PackModel.restore`), slip filter and clock are copied; ``params``
@@ -89,7 +94,7 @@ def fork_estimator(estimator: ClutchEstimator, params=None, **kwargs) -> ClutchE
     return other
 
 
-def scaled_params(params, friction_scale: float, gain_scale: float = 1.0):
+def scaled_params(params: ClutchParams, friction_scale: float, gain_scale: float = 1.0):
     """Return ``params`` with μ scaled by ``friction_scale`` and the spline gain by ``gain_scale``.
 
     μ_ref and μ_min are both multiplied, so μ itself is multiplied exactly (module docstring).
@@ -343,7 +348,7 @@ class AdaptiveEstimator:
 
     """
 
-    def __init__(self, params, settings: AdaptationSettings | None = None, *,
+    def __init__(self, params: ClutchParams, settings: AdaptationSettings | None = None, *,
                  friction_scale: float = 1.0, spline_gain_scale: float = 1.0,
                  **estimator_kwargs):
         self.settings = s = settings or AdaptationSettings()
@@ -385,7 +390,7 @@ class AdaptiveEstimator:
         """Return the base parameters with the current estimates applied (what is saved)."""
         return scaled_params(self.base_params, self.friction_scale, self.spline_gain_scale)
 
-    def set_base_params(self, params) -> None:
+    def set_base_params(self, params: ClutchParams) -> None:
         """Replace the base parameters (e.g. a live parameter change); the scales stay."""
         self.base_params = params
         self.gain_identifiable = self.settings.spline_gain and params.spline.law in GAIN_LAWS

@@ -27,6 +27,7 @@ Shapes: every :class:`EstimateBatch` array is (n,) except ``lamella_normal_force
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,6 +35,9 @@ from clutch_ros.model import kernel
 from clutch_ros.model.errors import DuplicateSample, InputError, NonFiniteSample, OutOfOrderSample
 from clutch_ros.model.pack import PackModel
 from clutch_ros.model.simulate import simulate, simulate_columns
+
+if TYPE_CHECKING:
+    from clutch_ros.model.params import ClutchParams
 
 __all__ = ["BatchEstimator", "EstimateBatch", "estimate_batch", "warm_up"]
 
@@ -81,7 +85,7 @@ _INPUTS = ("t", "p", "temp", "omega", "meas")
 _REJECTED = {1: NonFiniteSample, 2: DuplicateSample, 3: OutOfOrderSample}
 
 
-def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_speed,
+def estimate_batch(params: ClutchParams, t, actuating_pressure, lamella_temperature, slip_speed,
                    measured_torque=None, **options) -> EstimateBatch:
     """Estimate a whole series; identical to looping ``ClutchEstimator.update()``.
 
@@ -106,7 +110,7 @@ def estimate_batch(params, t, actuating_pressure, lamella_temperature, slip_spee
     return stream.result()
 
 
-def warm_up(params) -> bool:
+def warm_up(params: ClutchParams) -> bool:
     """Load the compiled kernel's machine code now; return whether the kernel is in use.
 
     numba loads a compiled function from its disk cache on the first call (~0.4 s with the
@@ -132,7 +136,7 @@ class BatchEstimator:
     a time (``clutch replay`` feeds from one worker thread, in order).
     """
 
-    def __init__(self, params, capacity: int = 0, *, max_gap_s: float = 1.0,
+    def __init__(self, params: ClutchParams, capacity: int = 0, *, max_gap_s: float = 1.0,
                  accuracy_min_torque: float = 1.0, overshoot_limit: float = 1.1,
                  undershoot_limit: float = 0.9, on_reject: str = "raise",
                  model: PackModel | None = None, engine: str = "auto",

@@ -68,10 +68,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from clutch_ros.model.adaptation import scaled_params
 from clutch_ros.model.errors import ModelError
 from clutch_ros.model.inverse import capacity_scalar, solve_pressure
+
+if TYPE_CHECKING:
+    from clutch_ros.model.params import ClutchParams
 
 __all__ = ["ControlCommand", "ControllerOutput", "ControllerSettings", "TorqueController",
            "command_pressure"]
@@ -98,7 +102,7 @@ class ControlCommand:
     reasons: tuple[str, ...]
 
 
-def command_pressure(params, target_torque: float, lamella_temperature: float,
+def command_pressure(params: ClutchParams, target_torque: float, lamella_temperature: float,
                      slip_speed: float, *, spline_correction: float = 0.0,
                      correction_gain: float = 1.0, overshoot_margin: float = 0.05,
                      guard_torque: float | None = None) -> ControlCommand:
@@ -252,7 +256,7 @@ class TorqueController:
     the rise/fall rate limits. :meth:`fail_safe` commands 0 Pa at once.
     """
 
-    def __init__(self, params, settings: ControllerSettings | None = None):
+    def __init__(self, params: ClutchParams, settings: ControllerSettings | None = None):
         self.base_params = params
         self.params = params
         self.settings = settings or ControllerSettings()
@@ -275,7 +279,7 @@ class TorqueController:
         # control tick of the first step (a node stalled that long there, then fail-safe)
         solve_pressure(params, 1.0, 20.0, 1.0)
 
-    def set_base_params(self, params) -> None:
+    def set_base_params(self, params: ClutchParams) -> None:
         """Replace the model parameters (scale 1); the adapted scales are re-applied."""
         self.base_params = params
         self._rescale(self.friction_scale, self.spline_gain_scale)

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -45,6 +46,9 @@ from clutch_ros.model.errors import (
 )
 from clutch_ros.model.pack import PackModel
 from clutch_ros.model.slip import SlipFilter
+
+if TYPE_CHECKING:
+    from clutch_ros.model.params import ClutchParams
 
 __all__ = ["ClutchEstimator", "Estimate"]
 
@@ -114,7 +118,8 @@ class ClutchEstimator:
 
     """
 
-    def __init__(self, params, *, max_gap_s: float = 1.0, accuracy_min_torque: float = 1.0,
+    def __init__(self, params: ClutchParams, *, max_gap_s: float = 1.0,
+                 accuracy_min_torque: float = 1.0,
                  overshoot_limit: float = 1.1, undershoot_limit: float = 0.9,
                  dt_resolution: float = 1e-5):
         if not (max_gap_s > 0.0 and accuracy_min_torque >= 0.0):
@@ -139,7 +144,7 @@ class ClutchEstimator:
         self.last_stamp = None
         self.slip_filter.reset()
 
-    def set_params(self, params) -> None:
+    def set_params(self, params: ClutchParams) -> None:
         """Apply new parameters at runtime, keeping the pack state where its shape allows."""
         self.pack.set_params(params)
         self.slip_filter.time_constant = params.slip.filter_time_constant

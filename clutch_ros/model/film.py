@@ -32,18 +32,23 @@ A measured temperature (finite input) always wins and resets the state to it.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from clutch_ros.model.params import FrictionParams, ThermalParams
 
 __all__ = ["film_step", "film_equilibrium", "thermal_step"]
 
 
-def _rates(fr, pressure: float, slip_speed: float) -> tuple[float, float]:
+def _rates(fr: FrictionParams, pressure: float, slip_speed: float) -> tuple[float, float]:
     x = slip_speed / fr.stribeck_speed
     g = math.exp(-(x * x))
     p = pressure if pressure > 0.0 else 0.0
     return (p / fr.pressure_ref) * g / fr.film_thinning_time, (1.0 - g) / fr.film_recovery_time
 
 
-def film_step(fr, film: float, dt: float, pressure: float, slip_speed: float) -> float:
+def film_step(fr: FrictionParams, film: float, dt: float, pressure: float,
+              slip_speed: float) -> float:
     """Advance φ by ``dt`` [s] at normal-force pressure [Pa] and slip [rad/s] held (docstring)."""
     thin, rec = _rates(fr, pressure, slip_speed)
     rate = thin + rec
@@ -53,14 +58,14 @@ def film_step(fr, film: float, dt: float, pressure: float, slip_speed: float) ->
     return target + (film - target) * math.exp(-rate * dt)
 
 
-def film_equilibrium(fr, film: float, pressure: float, slip_speed: float) -> float:
+def film_equilibrium(fr: FrictionParams, film: float, pressure: float, slip_speed: float) -> float:
     """Return φ_∞ at constant inputs (``film`` itself when both rates are zero)."""
     thin, rec = _rates(fr, pressure, slip_speed)
     rate = thin + rec
     return film if rate <= 0.0 else rec / rate
 
 
-def thermal_step(th, temperature: float, dt: float, power: float) -> float:
+def thermal_step(th: ThermalParams, temperature: float, dt: float, power: float) -> float:
     """Advance the lamella temperature [°C] by ``dt`` [s] with ``power`` [W] held."""
     g = th.conductance
     target = th.oil_temperature + power / g

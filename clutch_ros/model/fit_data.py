@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -55,6 +56,9 @@ from clutch_ros.model.laws import LawTable
 from clutch_ros.model.params import ClutchParams
 from clutch_ros.model.slip import lowpass_series
 from clutch_ros.model.statespace import build_state_space
+
+if TYPE_CHECKING:
+    from clutch_ros.model.params import ClutchParams
 
 __all__ = [
     "IdentificationError",
@@ -310,7 +314,7 @@ def _pack_time_constant(params: ClutchParams) -> float:
     return -1.0 / slow if slow < 0.0 else math.inf
 
 
-def prepare_segments(runs, params, opts: FitOptions) -> list[Segment]:
+def prepare_segments(runs, params: ClutchParams, opts: FitOptions) -> list[Segment]:
     """Clean, cut at gaps, filter the slip speed and decimate every run (step 1)."""
     tau_slip = params.slip.filter_time_constant
     target_dt = 1.0 / opts.fit_rate_hz

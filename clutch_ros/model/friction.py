@@ -37,8 +37,16 @@ magnitude.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
+
+from clutch_ros.model.arraytypes import FloatArray
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from clutch_ros.model.params import ClutchParams, FrictionParams
 
 __all__ = [
     "friction_coefficient",
@@ -52,13 +60,18 @@ __all__ = [
 ]
 
 
-def _out(value, *inputs):
+def _out(value: FloatArray, *inputs: ArrayLike) -> float | FloatArray:
+    # a float when every input is a scalar, else the array (the overloads below state it)
     if all(np.ndim(v) == 0 for v in inputs):
         return float(value)
     return value
 
 
-def sign_factor(slip_speed, sign_speed):
+@overload
+def sign_factor(slip_speed: float, sign_speed: float) -> float: ...
+@overload
+def sign_factor(slip_speed: ArrayLike, sign_speed: float) -> FloatArray: ...
+def sign_factor(slip_speed: ArrayLike, sign_speed: float) -> float | FloatArray:
     """Return the regularised sign s(ω / sign_speed) in [−1, 1] (module docstring)."""
     x = np.clip(np.asarray(slip_speed, dtype=float) / sign_speed, -1.0, 1.0)
     return _out(0.5 * x * (3.0 - x * x), slip_speed)
@@ -74,13 +87,26 @@ def sign_scalar(slip_speed: float, sign_speed: float) -> float:
     return 0.5 * x * (3.0 - x * x)
 
 
-def stribeck_weight(fr, slip_speed):
+@overload
+def stribeck_weight(fr: FrictionParams, slip_speed: float) -> float: ...
+@overload
+def stribeck_weight(fr: FrictionParams, slip_speed: ArrayLike) -> FloatArray: ...
+def stribeck_weight(fr: FrictionParams, slip_speed: ArrayLike) -> float | FloatArray:
     """Return g = exp(−(ω / stribeck_speed)²) ∈ (0, 1] (1 at standstill)."""
     x = np.asarray(slip_speed, dtype=float) / fr.stribeck_speed
     return _out(np.exp(-(x * x)), slip_speed)
 
 
-def friction_coefficient(params, lamella_temperature, pressure, slip_speed, film=1.0):
+@overload
+def friction_coefficient(params: ClutchParams, lamella_temperature: float, pressure: float,
+                         slip_speed: float, film: float = 1.0) -> float: ...
+@overload
+def friction_coefficient(params: ClutchParams, lamella_temperature: ArrayLike,
+                         pressure: ArrayLike, slip_speed: ArrayLike,
+                         film: ArrayLike = 1.0) -> FloatArray: ...
+def friction_coefficient(params: ClutchParams, lamella_temperature: ArrayLike,
+                         pressure: ArrayLike, slip_speed: ArrayLike,
+                         film: ArrayLike = 1.0) -> float | FloatArray:
     """Return μ [-] at lamella temperature [°C], pressure [Pa], slip [rad/s], film φ [-]."""
     fr = params.friction
     temp = np.asarray(lamella_temperature, dtype=float)
@@ -96,7 +122,7 @@ def friction_coefficient(params, lamella_temperature, pressure, slip_speed, film
     return _out(mu, lamella_temperature, pressure, slip_speed, film)
 
 
-def mu_scalar(fr, lamella_temperature: float, pressure: float, slip_speed: float,
+def mu_scalar(fr: FrictionParams, lamella_temperature: float, pressure: float, slip_speed: float,
               film: float = 1.0) -> float:
     """Scalar fast path of :func:`friction_coefficient` taking ``params.friction``."""
     f_t = 1.0 + fr.temperature_slope * (lamella_temperature - fr.temperature_ref)
@@ -105,16 +131,29 @@ def mu_scalar(fr, lamella_temperature: float, pressure: float, slip_speed: float
     x = slip_speed / fr.stribeck_speed
     g = math.exp(-(x * x))
     f_w = 1.0 + (fr.static_ratio - 1.0) * (g + (1.0 - g) * fr.film_depth * (1.0 - film))
-    mu = fr.mu_ref * f_t * f_p * f_w
+    mu: float = fr.mu_ref * f_t * f_p * f_w
     return mu if mu > fr.mu_min else fr.mu_min
 
 
-def slip_sign(params, slip_speed):
+@overload
+def slip_sign(params: ClutchParams, slip_speed: float) -> float: ...
+@overload
+def slip_sign(params: ClutchParams, slip_speed: ArrayLike) -> FloatArray: ...
+def slip_sign(params: ClutchParams, slip_speed: ArrayLike) -> float | FloatArray:
     """Return the regularised torque sign in [−1, 1] for ω [rad/s] (module docstring)."""
     return sign_factor(slip_speed, params.friction.sign_speed)
 
 
-def torque_capacity(params, actuating_pressure, lamella_temperature, slip_speed, film=1.0):
+@overload
+def torque_capacity(params: ClutchParams, actuating_pressure: float, lamella_temperature: float,
+                    slip_speed: float, film: float = 1.0) -> float: ...
+@overload
+def torque_capacity(params: ClutchParams, actuating_pressure: ArrayLike,
+                    lamella_temperature: ArrayLike, slip_speed: ArrayLike,
+                    film: ArrayLike = 1.0) -> FloatArray: ...
+def torque_capacity(params: ClutchParams, actuating_pressure: ArrayLike,
+                    lamella_temperature: ArrayLike, slip_speed: ArrayLike,
+                    film: ArrayLike = 1.0) -> float | FloatArray:
     """Return |Eq. 1| = 2 R_e μ F_N N with F_N = max(p, 0)·A [N m] (no sign, ≥ 0)."""
     pk = params.pack
     press = np.maximum(np.asarray(actuating_pressure, dtype=float), 0.0)
@@ -123,7 +162,14 @@ def torque_capacity(params, actuating_pressure, lamella_temperature, slip_speed,
     return _out(cap, actuating_pressure, lamella_temperature, slip_speed, film)
 
 
-def reference_torque(params, actuating_pressure, lamella_temperature, slip_speed):
+@overload
+def reference_torque(params: ClutchParams, actuating_pressure: float,
+                     lamella_temperature: float, slip_speed: float) -> float: ...
+@overload
+def reference_torque(params: ClutchParams, actuating_pressure: ArrayLike,
+                     lamella_temperature: ArrayLike, slip_speed: ArrayLike) -> FloatArray: ...
+def reference_torque(params: ClutchParams, actuating_pressure: ArrayLike,
+                     lamella_temperature: ArrayLike, slip_speed: ArrayLike) -> float | FloatArray:
     """Return the steady-state reference torque of Eq. 1 [N m], signed like ω_diff.
 
     ``T = 2 · R_e · μ · F_N · N · s(ω)`` with ``F_N = max(p, 0) · A``, μ from

@@ -61,6 +61,7 @@ import time
 from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -89,6 +90,9 @@ from clutch_ros.model.metrics import rmse
 from clutch_ros.model.pack import PackModel
 from clutch_ros.model.params import PARAMETER_SPECS, SPLINE_LAWS, TABLE7, ClutchParams
 from clutch_ros.model.simulate import simulate, simulate_columns
+
+if TYPE_CHECKING:
+    from clutch_ros.model.params import ClutchParams
 
 __all__ = [
     # errors and inputs (defined in clutch_ros.model.fit_data)
@@ -283,7 +287,7 @@ class _Problem:
         vals = self.values(z)
         return self.base.updated({k: float(v) for k, v in zip(self.keys, vals)})
 
-    def simulate(self, params):
+    def simulate(self, params: ClutchParams):
         """Block-mean model outputs (torque, front and rear pressure) per segment."""
         model = PackModel(params)
         out = []
@@ -297,7 +301,7 @@ class _Problem:
             out.append(tuple(model_block_means(y, s.w) for y in ys))
         return out
 
-    def residuals_parts(self, params, record: dict | None = None):
+    def residuals_parts(self, params: ClutchParams, record: dict | None = None):
         """Torque residuals [N m] and P_diff residuals [Pa], one array per segment.
 
         ``record``: a dict that receives the fitted front/rear disc gains per run (the final

@@ -30,11 +30,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from clutch_ros.model.errors import InputError, UnreachableTorqueError
 from clutch_ros.model.friction import mu_scalar
+
+if TYPE_CHECKING:
+    from clutch_ros.model.params import ClutchParams
 
 __all__ = ["PressureSolution", "solve_pressure", "pressure_for_torque",
            "pressure_for_torque_array", "capacity_scalar"]
@@ -62,7 +66,7 @@ class PressureSolution:
     reason: str
 
 
-def capacity_scalar(params, pressure: float, lamella_temperature: float,
+def capacity_scalar(params: ClutchParams, pressure: float, lamella_temperature: float,
                     slip_speed: float, film: float = 1.0) -> float:
     """Torque capacity C(p) = 2 R_e N A p μ [N m] for scalars (fast path of the inverse)."""
     pk = params.pack
@@ -71,7 +75,8 @@ def capacity_scalar(params, pressure: float, lamella_temperature: float,
     return 2.0 * pk.effective_radius * pk.lamella_count * pk.piston_area * mu * p
 
 
-def solve_pressure(params, torque: float, lamella_temperature: float, slip_speed: float,
+def solve_pressure(params: ClutchParams, torque: float, lamella_temperature: float,
+                   slip_speed: float,
                    spline_correction: float = 0.0, *, clamp: bool = True,
                    film: float = 1.0) -> PressureSolution:
     """Solve the inverse (module docstring) and report how the result was obtained.
@@ -124,14 +129,15 @@ def solve_pressure(params, torque: float, lamella_temperature: float, slip_speed
                             float(predicted), bool(reason), reason)
 
 
-def pressure_for_torque(params, torque: float, lamella_temperature: float, slip_speed: float,
+def pressure_for_torque(params: ClutchParams, torque: float, lamella_temperature: float,
+                        slip_speed: float,
                         spline_correction: float = 0.0, *, clamp: bool = True) -> float:
     """Return the actuating pressure [Pa] for a torque request [N m] (module docstring)."""
     return solve_pressure(params, torque, lamella_temperature, slip_speed, spline_correction,
                           clamp=clamp).pressure
 
 
-def pressure_for_torque_array(params, torque, lamella_temperature, slip_speed,
+def pressure_for_torque_array(params: ClutchParams, torque, lamella_temperature, slip_speed,
                               spline_correction=0.0, *, clamp: bool = True) -> np.ndarray:
     """Vectorised :func:`pressure_for_torque` (inputs broadcast) [Pa]."""
     arrays = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (

@@ -47,7 +47,10 @@ import difflib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 from clutch_ros.model.errors import ParameterError
 from clutch_ros.model.laws import LawNames, law_info
@@ -124,8 +127,10 @@ class ParamSpec:
         return value
 
 
-def _spec(key, unit, description, kind="float", minimum=None, maximum=None, default=None,
-          min_exclusive=False, choices=()):
+def _spec(key: str, unit: str, description: str, kind: str = "float",
+          minimum: float | None = None, maximum: float | None = None, default: Any = None,
+          min_exclusive: bool = False,
+          choices: Sequence[str] = ()) -> tuple[str, ParamSpec]:
     choices = choices if isinstance(choices, LawNames) else tuple(choices)  # live: the laws
     return key, ParamSpec(key, unit, description, kind, minimum, maximum, default,
                           min_exclusive, choices)
@@ -217,7 +222,7 @@ TABLE7: dict[tuple[str, int], Table7Entry] = {
 }
 
 
-def _validated(obj, namespace: str) -> None:
+def _validated(obj: DataclassInstance, namespace: str) -> None:
     for f in fields(obj):
         spec = PARAMETER_SPECS[f"{namespace}.{f.name}"]
         object.__setattr__(obj, f.name, spec.check(getattr(obj, f.name)))
@@ -235,7 +240,7 @@ class PackParams:
     lamella_damping: float  # [N s/m]
     max_pressure: float = 50e5  # [Pa]
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _validated(self, "clutch")
 
 
@@ -256,7 +261,7 @@ class FrictionParams:
     film_thinning_time: float = 1.0  # [s]
     film_recovery_time: float = 0.2  # [s]
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _validated(self, "friction")
 
 
@@ -270,7 +275,7 @@ class SplineParams:
     friction_coefficient: float = 0.05
     radius: float = 0.05  # [m]
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _validated(self, "spline")
 
 
@@ -280,7 +285,7 @@ class SlipParams:
 
     filter_time_constant: float = 0.02  # [s]
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _validated(self, "slip")
 
 
@@ -292,7 +297,7 @@ class ThermalParams:
     conductance: float = 60.0  # [W/K]
     oil_temperature: float = 35.0  # [°C]
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _validated(self, "thermal")
 
 
@@ -317,7 +322,7 @@ class ClutchParams:
     slip: SlipParams = field(default_factory=SlipParams)
     thermal: ThermalParams = field(default_factory=ThermalParams)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         fr = self.friction
         if fr.sign_speed > fr.stribeck_speed / 5.0:
             raise ParameterError("friction.sign_speed", f"must be <= friction.stribeck_speed/5 "

@@ -18,6 +18,7 @@ it is available and otherwise the numpy loop, logging why (the result says which
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from clutch_ros.model import kernel
 from clutch_ros.model.errors import DuplicateSample, InputError, NonFiniteSample, OutOfOrderSample
 from clutch_ros.model.friction import friction_coefficient, sign_factor
 from clutch_ros.model.pack import PackModel
+
+if TYPE_CHECKING:
+    from clutch_ros.model.params import ClutchParams
 
 __all__ = ["simulate", "simulate_columns", "SimulationResult", "as_series"]
 
@@ -104,7 +108,7 @@ def as_series(t, *values, names=("actuating_pressure", "slip_speed", "lamella_te
     return tuple(out)
 
 
-def simulate(params, t, actuating_pressure, slip_speed, lamella_temperature,
+def simulate(params: ClutchParams, t, actuating_pressure, slip_speed, lamella_temperature,
              initial_pressure: float | None = None, *, model: PackModel | None = None,
              engine: str = "auto", reset: bool = True) -> SimulationResult:
     """Simulate the pack over stamps ``t`` [s] (module docstring); return the outputs.
@@ -168,7 +172,8 @@ def _table(model, t):
     return table, inverse, dts
 
 
-def simulate_columns(params, t, actuating_pressure, slip_speed, lamella_temperature, outs, *,
+def simulate_columns(params: ClutchParams, t, actuating_pressure, slip_speed, lamella_temperature,
+                     outs, *,
                      model: PackModel, engine: str = "auto", reset: bool = True) -> bool:
     """:func:`simulate`'s outputs written straight into arrays by the compiled kernel.
 
@@ -237,7 +242,7 @@ def _loop(model, series, history, engine):
     return torque, "numpy"
 
 
-def _outputs(params, model, t, press, omega, temps, films, sign, states, forces):
+def _outputs(params: ClutchParams, model, t, press, omega, temps, films, sign, states, forces):
     lay = model.layout
     n_lam = lay.lamella_count
     area = model._area

@@ -13,10 +13,16 @@ The first sample initialises the filter to its value; τ = 0 passes the input th
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
 from clutch_ros.model.errors import InputError
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from clutch_ros.model.arraytypes import FloatArray
 
 __all__ = [
     "slip_speed_from_wheels",
@@ -27,19 +33,32 @@ __all__ = [
 ]
 
 
-def slip_speed_from_wheels(fl, fr, rl, rr):
+@overload
+def slip_speed_from_wheels(fl: float, fr: float, rl: float, rr: float) -> float: ...
+@overload
+def slip_speed_from_wheels(fl: ArrayLike, fr: ArrayLike, rl: ArrayLike,
+                           rr: ArrayLike) -> FloatArray: ...
+def slip_speed_from_wheels(fl: Any, fr: Any, rl: Any, rr: Any) -> Any:
     """Return Eq. 4: ω_diff = (ω_FR + ω_FL)/2 − (ω_RR + ω_RL)/2 [rad/s] (scalars or arrays)."""
     return (np.add(fr, fl) - np.add(rr, rl)) / 2.0 if np.ndim(fl) else (fr + fl) / 2.0 - (
         rr + rl) / 2.0
 
 
-def slip_speed_from_shafts(input_speed, output_speed):
+@overload
+def slip_speed_from_shafts(input_speed: float, output_speed: float) -> float: ...
+@overload
+def slip_speed_from_shafts(input_speed: ArrayLike, output_speed: ArrayLike) -> FloatArray: ...
+def slip_speed_from_shafts(input_speed: Any, output_speed: Any) -> Any:
     """Return ω_diff = ω_input − ω_output [rad/s]."""
     return np.subtract(input_speed, output_speed) if np.ndim(input_speed) else (
         input_speed - output_speed)
 
 
-def base_speed(input_speed, output_speed):
+@overload
+def base_speed(input_speed: float, output_speed: float) -> float: ...
+@overload
+def base_speed(input_speed: ArrayLike, output_speed: ArrayLike) -> FloatArray: ...
+def base_speed(input_speed: ArrayLike, output_speed: ArrayLike) -> float | FloatArray:
     """Return ω_base ≥ 0: the lower of the two shaft speed magnitudes [rad/s] (thesis 2.1.1).
 
     The other shaft then turns at ω_base + |ω_diff| when both turn the same way.
@@ -60,7 +79,7 @@ class SlipFilter:
 
     """
 
-    def __init__(self, time_constant: float):
+    def __init__(self, time_constant: float) -> None:
         if not (math.isfinite(time_constant) and time_constant >= 0.0):
             raise InputError(f"slip filter time constant must be finite and >= 0, got "
                              f"{time_constant!r}")
@@ -88,7 +107,7 @@ class SlipFilter:
         return self._value
 
 
-def lowpass_series(t, u, time_constant: float) -> np.ndarray:
+def lowpass_series(t: ArrayLike, u: ArrayLike, time_constant: float) -> FloatArray:
     """Filter ``u`` at stamps ``t`` [s] exactly as repeated :meth:`SlipFilter.update` calls.
 
     ``u[0]`` initialises the filter (as the first update does); same float operations, so the
