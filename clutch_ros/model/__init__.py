@@ -25,6 +25,7 @@ Every name is imported lazily from its module on first use (``_EXPORTS``).
 """
 
 import importlib
+from typing import Any
 
 # Imported eagerly: the function ``simulate`` shares its name with its module, and a lazy
 # name would be shadowed by the submodule as soon as anything imports
@@ -145,7 +146,7 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
     """Import the module defining ``name`` on first use (module docstring)."""
     module = _EXPORTS.get(name)
     if module is None:

@@ -181,7 +181,7 @@ class ClutchEstimator:
         measured = float(measured_torque)
         last = self.last_stamp
         reinit = last is None or stamp - last > self.max_gap_s
-        if reinit:
+        if reinit or last is None:  # (last None: reinit; spelt out for the type checker)
             self.slip_filter.reset(omega)
             omega_f = omega
             self.pack.reset(p, temp, omega_f)

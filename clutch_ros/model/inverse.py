@@ -38,6 +38,9 @@ from clutch_ros.model.errors import InputError, UnreachableTorqueError
 from clutch_ros.model.friction import mu_scalar
 
 if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from clutch_ros.model.arraytypes import FloatArray
     from clutch_ros.model.params import ClutchParams
 
 __all__ = ["PressureSolution", "solve_pressure", "pressure_for_torque",
@@ -137,8 +140,10 @@ def pressure_for_torque(params: ClutchParams, torque: float, lamella_temperature
                           clamp=clamp).pressure
 
 
-def pressure_for_torque_array(params: ClutchParams, torque, lamella_temperature, slip_speed,
-                              spline_correction=0.0, *, clamp: bool = True) -> np.ndarray:
+def pressure_for_torque_array(params: ClutchParams, torque: ArrayLike,
+                              lamella_temperature: ArrayLike, slip_speed: ArrayLike,
+                              spline_correction: ArrayLike = 0.0, *,
+                              clamp: bool = True) -> FloatArray:
     """Vectorised :func:`pressure_for_torque` (inputs broadcast) [Pa]."""
     arrays = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (
         torque, lamella_temperature, slip_speed, spline_correction)))

@@ -21,10 +21,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from statistics import NormalDist
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from clutch_ros.model.arraytypes import BoolArray, FloatArray, IntArray
 from clutch_ros.model.errors import InputError
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 __all__ = [
     "torque_accuracy",
@@ -39,7 +44,7 @@ __all__ = [
     "accuracy_summary", "longest_run"]
 
 
-def _ratio(num, den, min_torque):
+def _ratio(num: ArrayLike, den: ArrayLike, min_torque: float) -> FloatArray:
     num = np.asarray(num, dtype=float)
     den = np.asarray(den, dtype=float)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -47,36 +52,39 @@ def _ratio(num, den, min_torque):
         return np.where(ok, num / np.where(ok, den, 1.0), np.nan)
 
 
-def torque_accuracy(measured, modelled, min_torque: float = 1.0):
+def torque_accuracy(measured: ArrayLike, modelled: ArrayLike,
+                    min_torque: float = 1.0) -> FloatArray:
     """Return measured / modelled; NaN where |modelled| < ``min_torque`` [N m] or NaN input."""
     return _ratio(measured, modelled, min_torque)
 
 
-def request_accuracy(measured, requested, min_torque: float = 1.0):
+def request_accuracy(measured: ArrayLike, requested: ArrayLike,
+                     min_torque: float = 1.0) -> FloatArray:
     """Return measured / requested; NaN where |requested| < ``min_torque`` [N m]."""
     return _ratio(measured, requested, min_torque)
 
 
-def overshoot(accuracy, limit: float = 1.1):
+def overshoot(accuracy: ArrayLike, limit: float = 1.1) -> BoolArray:
     """Return accuracy > ``limit`` (False for NaN)."""
     with np.errstate(invalid="ignore"):
         return np.asarray(accuracy, dtype=float) > limit
 
 
-def undershoot(accuracy, limit: float = 0.9):
+def undershoot(accuracy: ArrayLike, limit: float = 0.9) -> BoolArray:
     """Return accuracy < ``limit`` (False for NaN)."""
     with np.errstate(invalid="ignore"):
         return np.asarray(accuracy, dtype=float) < limit
 
 
-def rmse(measured, modelled) -> float:
+def rmse(measured: ArrayLike, modelled: ArrayLike) -> float:
     """Root mean square of (measured − modelled) over finite pairs [N m]; NaN if none."""
     err = np.asarray(measured, dtype=float) - np.asarray(modelled, dtype=float)
     err = err[np.isfinite(err)]
     return float(np.sqrt(np.mean(err * err))) if err.size else float("nan")
 
 
-def within_band(measured, modelled, band: float = 0.1, threshold_fraction: float = 0.05,
+def within_band(measured: ArrayLike, modelled: ArrayLike, band: float = 0.1,
+                threshold_fraction: float = 0.05,
                 min_torque: float = 1.0) -> float:
     """Fraction of samples with accuracy in [1 − band, 1 + band].
 
@@ -103,17 +111,17 @@ class CrossCorrelation:
 
     """
 
-    lags: np.ndarray
-    r: np.ndarray
+    lags: IntArray
+    r: FloatArray
     band: float
-    normalized: np.ndarray
+    normalized: FloatArray
     band_normalized: float
     outside: float
     confidence: float
     samples: int
 
 
-def cross_correlation(residual, inputs, max_lag: int = 50,
+def cross_correlation(residual: ArrayLike, inputs: ArrayLike, max_lag: int = 50,
                       confidence: float = 0.99) -> CrossCorrelation:
     """Eq. 3 for lags −max_lag…max_lag with its confidence band (samples with NaN dropped)."""
     eps = np.asarray(residual, dtype=float)
@@ -149,7 +157,7 @@ def cross_correlation(residual, inputs, max_lag: int = 50,
                             float(confidence), int(n))
 
 
-def hysteresis_width(pressure, torque, at_pressure: float) -> float:
+def hysteresis_width(pressure: ArrayLike, torque: ArrayLike, at_pressure: float) -> float:
     """Torque on the falling leg minus the rising leg at ``at_pressure`` [N m].
 
     The legs are split at the pressure maximum; each leg is interpolated at ``at_pressure``
@@ -169,7 +177,7 @@ def hysteresis_width(pressure, torque, at_pressure: float) -> float:
     return float(fall - rise)
 
 
-def _strict(p, t, last):
+def _strict(p: FloatArray, t: FloatArray, last: bool) -> tuple[FloatArray, FloatArray]:
     """Keep one sample per plateau of equal pressure, the one latest in time (settled).
 
     ``last``: the array runs forward in time (keep the last of a run), else backward.
@@ -184,8 +192,9 @@ def _strict(p, t, last):
 SUMMARY_BLOCK = 1 << 16
 
 
-def accuracy_summary(measured, modelled, reference=None, threshold_fraction: float = 0.05,
-                     min_torque: float = 1.0, where=None) -> dict:
+def accuracy_summary(measured: ArrayLike, modelled: ArrayLike, reference: ArrayLike | None = None,
+                     threshold_fraction: float = 0.05, min_torque: float = 1.0,
+                     where: ArrayLike | None = None) -> dict[str, float]:
     """Return the replay/demo numbers as a dict.
 
     Keys: samples, rmse_nm, reference_rmse_nm, within_10pct, reference_within_10pct,
@@ -211,8 +220,10 @@ def accuracy_summary(measured, modelled, reference=None, threshold_fraction: flo
             "max_accuracy": high, "min_accuracy": low}
 
 
-def _band_summary(measured, series: dict, band: float, threshold_fraction: float,
-                  min_torque: float, where=None) -> dict:
+def _band_summary(measured: ArrayLike, series: dict[str, ArrayLike], band: float,
+                  threshold_fraction: float, min_torque: float,
+                  where: ArrayLike | None = None,
+                  ) -> dict[str, tuple[float, float, float, float, int]]:
     """Per model in ``series``: (RMSE, fraction within ±band, min and max accuracy, samples).
 
     The formulas of :func:`rmse`, :func:`within_band` and the accuracy extremes over the
@@ -224,7 +235,7 @@ def _band_summary(measured, series: dict, band: float, threshold_fraction: float
     mask = None if where is None else np.broadcast_to(np.asarray(where, dtype=bool), meas.shape)
     blocks = [slice(a, a + SUMMARY_BLOCK) for a in range(0, meas.size, SUMMARY_BLOCK)]
 
-    def usable(values, b):
+    def usable(values: FloatArray, b: slice) -> BoolArray:
         ok = np.isfinite(values)
         return ok if mask is None else ok & mask[b]
 
@@ -235,7 +246,7 @@ def _band_summary(measured, series: dict, band: float, threshold_fraction: float
             peak = max(peak, float(np.max(np.abs(meas[b][finite]))))
     threshold = threshold_fraction * peak
     # per model: sum of squares, finite pairs, inside the band, lowest and highest accuracy
-    sums = {k: [0.0, 0, 0, np.inf, -np.inf] for k in models}
+    sums: dict[str, list[float]] = {k: [0.0, 0, 0, np.inf, -np.inf] for k in models}
     counted_n = 0
     for b in blocks:  # pass 2: everything else
         m = meas[b]
@@ -264,7 +275,7 @@ def _band_summary(measured, series: dict, band: float, threshold_fraction: float
             for k, (sq, pairs, inside, low, high) in sums.items()}
 
 
-def longest_run(flags, t) -> float:
+def longest_run(flags: ArrayLike, t: ArrayLike) -> float:
     """Longest contiguous stretch [s] where ``flags`` is True, on sorted times ``t`` [s].
 
     A stretch runs from its first True sample to the first False sample after it (or the
