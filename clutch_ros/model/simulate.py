@@ -18,7 +18,7 @@ it is available and otherwise the numpy loop, logging why (the result says which
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,6 +28,10 @@ from clutch_ros.model.friction import friction_coefficient, sign_factor
 from clutch_ros.model.pack import PackModel
 
 if TYPE_CHECKING:
+    from numpy.typing import ArrayLike, NDArray
+
+    from clutch_ros.model.arraytypes import FloatArray, IntArray
+    from clutch_ros.model.discretisation import _Entry
     from clutch_ros.model.params import ClutchParams
 
 __all__ = ["simulate", "simulate_columns", "SimulationResult", "as_series"]
@@ -77,7 +81,9 @@ class SimulationResult:
         return int(self.t.size)
 
 
-def as_series(t, *values, names=("actuating_pressure", "slip_speed", "lamella_temperature")):
+def as_series(t: ArrayLike, *values: ArrayLike,
+              names: tuple[str, ...] = ("actuating_pressure", "slip_speed",
+                                        "lamella_temperature")) -> tuple[FloatArray, ...]:
     """Validate stamps and broadcast inputs; return float arrays (t, *values).
 
     ``t`` must be 1-D, finite and strictly increasing; values broadcast to its shape and must
@@ -87,6 +93,7 @@ def as_series(t, *values, names=("actuating_pressure", "slip_speed", "lamella_te
     t = np.asarray(t, dtype=float)
     if t.ndim != 1 or t.size == 0:
         raise InputError(f"t must be a non-empty 1-D array, got shape {t.shape}")
+    out: list[FloatArray]
     if not np.isfinite(t).all():
         raise NonFiniteSample(f"t[{int(np.flatnonzero(~np.isfinite(t))[0])}] is not finite")
     dts = np.diff(t)
@@ -108,7 +115,8 @@ def as_series(t, *values, names=("actuating_pressure", "slip_speed", "lamella_te
     return tuple(out)
 
 
-def simulate(params: ClutchParams, t, actuating_pressure, slip_speed, lamella_temperature,
+def simulate(params: ClutchParams, t: ArrayLike, actuating_pressure: ArrayLike,
+             slip_speed: ArrayLike, lamella_temperature: ArrayLike,
              initial_pressure: float | None = None, *, model: PackModel | None = None,
              engine: str = "auto", reset: bool = True) -> SimulationResult:
     """Simulate the pack over stamps ``t`` [s] (module docstring); return the outputs.
@@ -153,13 +161,15 @@ def simulate(params: ClutchParams, t, actuating_pressure, slip_speed, lamella_te
     return result
 
 
-def _table(model, t):
+def _table(model: PackModel, t: FloatArray) -> tuple[list[_Entry], IntArray, FloatArray]:
     """Return the steps of ``t``: (discretisation entries, entry index per step, dts [s])."""
     dts = np.diff(t)
     if dts.size == 0:  # one sample: no step (an entry only to give the loop its shapes)
         return [model.discretisation(1e-3)], np.zeros(0, dtype=np.int64), dts
     res = model.dt_resolution
-    keys = np.maximum(np.rint(dts / res), 1.0).astype(np.int64) if res > 0.0 else dts
+    # keys: dt in units of the resolution (int64), or the dts themselves
+    keys: NDArray[Any] = np.maximum(np.rint(dts / res), 1.0).astype(np.int64) if res > 0.0 \
+        else dts
     if keys.min() == keys.max():  # uniform sampling: one entry
         uniq, inverse = keys[:1], np.zeros(keys.size, dtype=np.int64)
     else:
@@ -172,8 +182,9 @@ def _table(model, t):
     return table, inverse, dts
 
 
-def simulate_columns(params: ClutchParams, t, actuating_pressure, slip_speed, lamella_temperature,
-                     outs, *,
+def simulate_columns(params: ClutchParams, t: FloatArray, actuating_pressure: FloatArray,
+                     slip_speed: FloatArray, lamella_temperature: FloatArray,
+                     outs: FloatArray | kernel.Columns, *,
                      model: PackModel, engine: str = "auto", reset: bool = True) -> bool:
     """:func:`simulate`'s outputs written straight into arrays by the compiled kernel.
 
@@ -208,7 +219,8 @@ def simulate_columns(params: ClutchParams, t, actuating_pressure, slip_speed, la
     return kernel.run_columns(model, series, columns, engine)
 
 
-def _loop(model, series, history, engine):
+def _loop(model: PackModel, series: kernel.Series, history: kernel.History,
+          engine: str) -> tuple[FloatArray, str]:
     """Run steps 1..n-1 compiled or with :meth:`PackModel._advance` (the code ``step()`` runs).
 
     ``series``: :data:`~clutch_ros.model.kernel.Series`; fills the rows of ``history``
@@ -242,7 +254,9 @@ def _loop(model, series, history, engine):
     return torque, "numpy"
 
 
-def _outputs(params: ClutchParams, model, t, press, omega, temps, films, sign, states, forces):
+def _outputs(params: ClutchParams, model: PackModel, t: FloatArray, press: FloatArray,
+             omega: FloatArray, temps: FloatArray, films: FloatArray, sign: FloatArray,
+             states: FloatArray, forces: FloatArray) -> SimulationResult:
     lay = model.layout
     n_lam = lay.lamella_count
     area = model._area
