@@ -27,16 +27,19 @@ Shapes: every :class:`EstimateBatch` array is (n,) except ``lamella_normal_force
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from clutch_ros.model import kernel
+from clutch_ros.model.arraytypes import BoolArray, FloatArray, IntArray
 from clutch_ros.model.errors import DuplicateSample, InputError, NonFiniteSample, OutOfOrderSample
 from clutch_ros.model.pack import PackModel
 from clutch_ros.model.simulate import simulate, simulate_columns
 
 if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
     from clutch_ros.model.params import ClutchParams
 
 __all__ = ["BatchEstimator", "EstimateBatch", "estimate_batch", "warm_up"]
@@ -51,27 +54,27 @@ class EstimateBatch:
     ``spline_law`` is a string.
     """
 
-    stamp: np.ndarray
-    accepted: np.ndarray
-    reinitialised: np.ndarray
-    modelled_torque: np.ndarray
-    reference_torque: np.ndarray
-    measured_torque: np.ndarray
-    torque_accuracy: np.ndarray
-    friction_coefficient: np.ndarray
-    lamella_normal_force: np.ndarray
-    spline_friction_force: np.ndarray
-    front_pressure: np.ndarray
-    rear_pressure: np.ndarray
-    pressure_difference: np.ndarray
-    slip_speed_filtered: np.ndarray
-    overshoot: np.ndarray
-    undershoot: np.ndarray
-    actuating_pressure: np.ndarray
-    lamella_temperature: np.ndarray
-    slip_speed: np.ndarray
-    compression: np.ndarray
-    spline_correction: np.ndarray
+    stamp: FloatArray
+    accepted: BoolArray
+    reinitialised: BoolArray
+    modelled_torque: FloatArray
+    reference_torque: FloatArray
+    measured_torque: FloatArray
+    torque_accuracy: FloatArray
+    friction_coefficient: FloatArray
+    lamella_normal_force: FloatArray | None  # None: per_lamella=False
+    spline_friction_force: FloatArray | None  # None: per_lamella=False
+    front_pressure: FloatArray
+    rear_pressure: FloatArray
+    pressure_difference: FloatArray
+    slip_speed_filtered: FloatArray
+    overshoot: BoolArray
+    undershoot: BoolArray
+    actuating_pressure: FloatArray
+    lamella_temperature: FloatArray
+    slip_speed: FloatArray
+    compression: FloatArray
+    spline_correction: FloatArray
     spline_law: str
 
     def __len__(self) -> int:
@@ -85,8 +88,9 @@ _INPUTS = ("t", "p", "temp", "omega", "meas")
 _REJECTED = {1: NonFiniteSample, 2: DuplicateSample, 3: OutOfOrderSample}
 
 
-def estimate_batch(params: ClutchParams, t, actuating_pressure, lamella_temperature, slip_speed,
-                   measured_torque=None, **options) -> EstimateBatch:
+def estimate_batch(params: ClutchParams, t: ArrayLike, actuating_pressure: ArrayLike,
+                   lamella_temperature: ArrayLike, slip_speed: ArrayLike,
+                   measured_torque: ArrayLike | None = None, **options: Any) -> EstimateBatch:
     """Estimate a whole series; identical to looping ``ClutchEstimator.update()``.
 
     Inputs broadcast to ``t``'s shape (1-D stamps [s]); ``measured_torque`` None means no
@@ -140,7 +144,7 @@ class BatchEstimator:
                  accuracy_min_torque: float = 1.0, overshoot_limit: float = 1.1,
                  undershoot_limit: float = 0.9, on_reject: str = "raise",
                  model: PackModel | None = None, engine: str = "auto",
-                 per_lamella: bool = True):
+                 per_lamella: bool = True) -> None:
         if on_reject not in ("raise", "skip"):
             raise InputError(f"on_reject must be 'raise' or 'skip', got {on_reject!r}")
         kernel.check_engine(engine)
@@ -156,12 +160,15 @@ class BatchEstimator:
         self._alloc(max(int(capacity), 1))
 
     def _alloc(self, size: int) -> None:
-        self._in = {k: np.empty(size) for k in _INPUTS}
-        self.cols = np.empty((_N_COLS, size))
-        self.accepted = np.zeros(size, dtype=bool)
-        self.reinit = np.zeros(size, dtype=bool)
-        self.normal = np.empty((size, self.lamellas)) if self.lamellas else None
-        self.spline = np.empty((size, self.lamellas)) if self.lamellas else None
+        self._in: dict[str, FloatArray] = {k: np.empty(size) for k in _INPUTS}
+        self.cols: FloatArray = np.empty((_N_COLS, size))
+        self.accepted: BoolArray = np.zeros(size, dtype=bool)
+        self.reinit: BoolArray = np.zeros(size, dtype=bool)
+        # per-lamella normal and spline forces; None both when per_lamella is False
+        self.normal: FloatArray | None = np.empty((size, self.lamellas)) if self.lamellas \
+            else None
+        self.spline: FloatArray | None = np.empty((size, self.lamellas)) if self.lamellas \
+            else None
 
     def _grow(self, needed: int) -> None:
         """Reallocate for at least ``needed`` samples (doubling), keeping what was fed."""
@@ -173,11 +180,12 @@ class BatchEstimator:
             self._in[k][:n] = ins[k][:n]
         self.cols[:, :n], self.accepted[:n], self.reinit[:n] = (cols[:, :n], accepted[:n],
                                                                 reinit[:n])
-        if self.lamellas:
+        if (self.normal is not None and self.spline is not None and normal is not None
+                and spline is not None):  # (all four are arrays when self.lamellas)
             self.normal[:n], self.spline[:n] = normal[:n], spline[:n]
 
-    def feed(self, t, actuating_pressure, lamella_temperature, slip_speed,
-             measured_torque=np.nan) -> None:
+    def feed(self, t: ArrayLike, actuating_pressure: ArrayLike, lamella_temperature: ArrayLike,
+             slip_speed: ArrayLike, measured_torque: ArrayLike = np.nan) -> None:
         """Estimate the next samples of the stream.
 
         Stamps [s] (1-D), pressure [Pa], temperature [°C] (NaN: not measured), slip [rad/s],
@@ -213,14 +221,14 @@ class BatchEstimator:
         if not ok.all():
             bad = a + np.flatnonzero(~ok)
             self.cols[:, bad] = np.nan
-            if self.lamellas:
+            if self.normal is not None and self.spline is not None:  # self.lamellas
                 self.normal[bad] = np.nan
                 self.spline[bad] = np.nan
         idx = a + np.flatnonzero(ok)
         if idx.size:
             self._estimate(idx)
 
-    def _rejections(self, ins: dict) -> tuple[np.ndarray, np.ndarray]:
+    def _rejections(self, ins: dict[str, FloatArray]) -> tuple[BoolArray, IntArray]:
         """Return accepted flags and reject kinds (1 non-finite, 2 repeat, 3 older) of a piece."""
         t = ins["t"]
         finite = (np.isfinite(t) & np.isfinite(ins["p"]) & ~np.isinf(ins["temp"])
@@ -233,7 +241,7 @@ class BatchEstimator:
         kinds = np.where(~finite, 1, np.where(t == prev, 2, np.where(t < prev, 3, 0)))
         return accepted, kinds
 
-    def _estimate(self, idx: np.ndarray) -> None:
+    def _estimate(self, idx: IntArray) -> None:
         """Run the accepted rows ``idx`` (global, increasing) segment by segment."""
         t = self._in["t"]
         ta = t[idx]
@@ -242,16 +250,17 @@ class BatchEstimator:
         starts = np.concatenate([[0], breaks, [ta.size]])
         if self.model is None:
             self.model = PackModel(self.params)
+        model = self.model
         for k, (s, e) in enumerate(zip(starts[:-1].tolist(), starts[1:].tolist())):
             rows = idx[s:e]
             if k == 0 and cont:
-                self._segment(np.concatenate([[self._last], rows]), True)
+                self._segment(np.concatenate([[self._last], rows]), True, model)
             else:
                 self.reinit[rows[0]] = True
-                self._segment(rows, False)
+                self._segment(rows, False, model)
         self._last = int(idx[-1])
 
-    def _segment(self, rows: np.ndarray, cont: bool) -> None:
+    def _segment(self, rows: IntArray, cont: bool, model: PackModel) -> None:
         """Estimate the gap-free accepted ``rows`` into the output arrays.
 
         ``cont``: ``rows[0]`` is the previous piece's last accepted sample, already estimated;
@@ -272,16 +281,16 @@ class BatchEstimator:
             nrm, spl = (None, None) if nrm_all is None else (
                 np.empty((count, self.lamellas)), np.empty((count, self.lamellas)))
             offset = 0
-        if cont:  # the filter continues from the last filtered value, not from u[0]
-            omegas = omegas.copy()
+        if keep is not None:  # cont: the filter continues from the last filtered value,
+            omegas = omegas.copy()  # not from u[0]
             omegas[0] = keep[0][_SLIP]
         omega_f = kernel.lowpass_series(ts, omegas, params.slip.filter_time_constant,
                                         self.engine)
         out[_SLIP, offset:offset + count] = omega_f
         if not simulate_columns(params, ts, ps, omega_f, temps,
-                                kernel.Columns(out, nrm, spl, offset), model=self.model,
+                                kernel.Columns(out, nrm, spl, offset), model=model,
                                 engine=self.engine, reset=not cont):
-            sim = simulate(params, ts, ps, omega_f, temps, model=self.model,
+            sim = simulate(params, ts, ps, omega_f, temps, model=model,
                            engine=self.engine, reset=not cont)
             dest = out[:, offset:offset + count]
             for i, name in enumerate(kernel.OUTPUT_COLUMNS[:-1]):
@@ -289,17 +298,19 @@ class BatchEstimator:
             weights = np.arange(1, sim.spline_force.shape[1] + 1, dtype=float)
             dest[_CORRECTION] = sim.spline_force @ weights / (weights.size
                                                               * params.pack.piston_area)
-            if nrm is not None:
+            if nrm is not None and spl is not None:
                 nrm[offset:offset + count] = sim.normal_force
                 spl[offset:offset + count] = sim.spline_force
         if out is not cols:
             cols[:, rows] = out
-            if nrm_all is not None:
+            if nrm_all is not None and spl_all is not None and nrm is not None \
+                    and spl is not None:
                 nrm_all[rows] = nrm
                 spl_all[rows] = spl
-        if cont:  # sample rows[0] belongs to the previous piece: its outputs stay as they were
-            cols[:, rows[0]] = keep[0]
-            if nrm_all is not None:
+        if keep is not None:  # cont: sample rows[0] belongs to the previous piece: its
+            cols[:, rows[0]] = keep[0]  # outputs stay as they were
+            if nrm_all is not None and spl_all is not None and keep[1] is not None \
+                    and keep[2] is not None:
                 nrm_all[rows[0]], spl_all[rows[0]] = keep[1], keep[2]
 
     def result(self) -> EstimateBatch:
@@ -316,12 +327,13 @@ class BatchEstimator:
             over, under = acc > self.limits[0], acc < self.limits[1]
         every = bool(accepted.all())
         keep = np.copy if every else (lambda x: np.where(accepted, x, np.nan))
-        lam = (self.normal[:n], self.spline[:n]) if self.lamellas else (None, None)
+        normal, spline = self.normal, self.spline  # None both unless per_lamella
         return EstimateBatch(
             stamp=ins["t"].copy(), accepted=accepted, reinitialised=self.reinit[:n],
             modelled_torque=mod, reference_torque=cols[_REFERENCE], measured_torque=keep(meas),
             torque_accuracy=acc, friction_coefficient=cols[_MU],
-            lamella_normal_force=lam[0], spline_friction_force=lam[1],
+            lamella_normal_force=None if normal is None else normal[:n],
+            spline_friction_force=None if spline is None else spline[:n],
             front_pressure=cols[_FRONT], rear_pressure=cols[_REAR],
             pressure_difference=cols[_FRONT] - cols[_REAR], slip_speed_filtered=cols[_SLIP],
             overshoot=over, undershoot=under, actuating_pressure=keep(ins["p"]),
