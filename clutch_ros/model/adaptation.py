@@ -54,8 +54,9 @@ from __future__ import annotations
 
 import copy
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -65,6 +66,7 @@ from clutch_ros.model.inverse import capacity_scalar
 from clutch_ros.model.laws import LawNames
 
 if TYPE_CHECKING:
+    from clutch_ros.model.arraytypes import FloatArray
     from clutch_ros.model.params import ClutchParams
 
 __all__ = ["AdaptationSettings", "AdaptationStatus", "AdaptiveEstimate", "AdaptiveEstimator",
@@ -75,8 +77,8 @@ __all__ = ["AdaptationSettings", "AdaptationStatus", "AdaptiveEstimate", "Adapti
 GAIN_LAWS = LawNames("adapts_gain")
 
 
-def fork_estimator(estimator: ClutchEstimator, params: ClutchParams=None,
-                   **kwargs) -> ClutchEstimator:
+def fork_estimator(estimator: ClutchEstimator, params: ClutchParams | None = None,
+                   **kwargs: Any) -> ClutchEstimator:
     """Return an independent :class:`ClutchEstimator` in the same state as ``estimator``.
 
     Pack state (:meth:`PackModel.restore`), slip filter and clock are copied; ``params``
@@ -94,7 +96,8 @@ def fork_estimator(estimator: ClutchEstimator, params: ClutchParams=None,
     return other
 
 
-def scaled_params(params: ClutchParams, friction_scale: float, gain_scale: float = 1.0):
+def scaled_params(params: ClutchParams, friction_scale: float,
+                  gain_scale: float = 1.0) -> ClutchParams:
     """Return ``params`` with μ scaled by ``friction_scale`` and the spline gain by ``gain_scale``.
 
     μ_ref and μ_min are both multiplied, so μ itself is multiplied exactly (module docstring).
@@ -210,7 +213,8 @@ class ParameterFilter:
 
     """
 
-    def __init__(self, theta, std, lower, upper):
+    def __init__(self, theta: Sequence[float], std: Sequence[float], lower: Sequence[float],
+                 upper: Sequence[float]) -> None:
         if not (len(theta) == len(std) == len(lower) == len(upper) == 2):
             raise ModelError("ParameterFilter takes exactly two parameters")
         self.theta = [float(v) for v in theta]
@@ -233,12 +237,12 @@ class ParameterFilter:
         return math.sqrt(min(v / forgetting, self.prior[i]) / v)
 
     @property
-    def covariance(self) -> np.ndarray:
+    def covariance(self) -> FloatArray:
         """P as a 2 x 2 array."""
         return np.array(self.P)
 
-    def update(self, phi, y: float, noise_var: float, forgetting: float = 1.0,
-               active=(True, True)) -> float:
+    def update(self, phi: Sequence[float], y: float, noise_var: float, forgetting: float = 1.0,
+               active: tuple[bool, bool] = (True, True)) -> float:
         """Fold in one observation ``y = φᵀθ + e``, var(e) = ``noise_var``; return y − φᵀθ.
 
         ``forgetting`` is λ in (0, 1]; ``active`` restricts the update to some parameters
@@ -327,7 +331,8 @@ class _Guard:
     last_stamp: float | None = None
     last_fast: float = -math.inf
     missing_since: float | None = None
-    counts: dict = field(default_factory=lambda: {"adapting": 0, "paused": 0, "frozen": 0,
+    counts: dict[str, int] = field(default_factory=lambda: {"adapting": 0, "paused": 0,
+                                                             "frozen": 0,
                                                   "waiting": 0, "off": 0,
                                                   "dropouts": 0, "implausible": 0})
 
@@ -350,7 +355,7 @@ class AdaptiveEstimator:
 
     def __init__(self, params: ClutchParams, settings: AdaptationSettings | None = None, *,
                  friction_scale: float = 1.0, spline_gain_scale: float = 1.0,
-                 **estimator_kwargs):
+                 **estimator_kwargs: Any) -> None:
         self.settings = s = settings or AdaptationSettings()
         self.base_params = params
         self._kwargs = estimator_kwargs
@@ -382,11 +387,11 @@ class AdaptiveEstimator:
         return float(self.filter.theta[1])
 
     @property
-    def counts(self) -> dict:
+    def counts(self) -> dict[str, int]:
         """Samples per state and the number of dropouts / implausible measurements."""
         return dict(self._guard.counts)
 
-    def adapted_params(self):
+    def adapted_params(self) -> ClutchParams:
         """Return the base parameters with the current estimates applied (what is saved)."""
         return scaled_params(self.base_params, self.friction_scale, self.spline_gain_scale)
 
@@ -437,8 +442,10 @@ class AdaptiveEstimator:
                 self.base_params, self.applied[0],
                 self.applied[1] * (1.0 + self.settings.gain_step)), **self._kwargs)
 
-    def _sensitivity(self, est: Estimate, args) -> float:
+    def _sensitivity(self, est: Estimate, args: tuple[float, float, float, float, float],
+                     ) -> float:
         """∂T/∂g [N m per unit relative gain] by the shadow estimator at g (1 + δ)."""
+        assert self._shadow is not None  # update() forks it first (_start_shadow)
         shadow = self._shadow.update(*args)
         step = self.applied[1] * self.settings.gain_step
         return (shadow.modelled_torque - est.modelled_torque) / step
@@ -500,8 +507,8 @@ class AdaptiveEstimator:
     def _adapt(self, est: Estimate, sensitivity: float) -> AdaptationStatus:
         s, g = self.settings, self._guard
         t, torque, y = est.stamp, est.modelled_torque, est.measured_torque
-        rate = (math.inf if g.last_stamp is None or est.reinitialised
-                else abs(torque - g.last_torque) / (t - g.last_stamp))
+        rate = (math.inf if g.last_stamp is None or g.last_torque is None or est.reinitialised
+                else abs(torque - g.last_torque) / (t - g.last_stamp))  # (set together)
         dt = 0.0 if g.last_stamp is None else t - g.last_stamp
         g.last_stamp, g.last_torque = t, torque
         if not s.enabled:
