@@ -40,8 +40,9 @@ step 2; :class:`Segment` is the decimated piece of a run the fit simulates.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -58,7 +59,17 @@ from clutch_ros.model.slip import lowpass_series
 from clutch_ros.model.statespace import build_state_space
 
 if TYPE_CHECKING:
-    from clutch_ros.model.params import ClutchParams
+
+    from clutch_ros.model.arraytypes import FloatArray, IntArray
+
+
+class _BoundedResiduals(Protocol):
+    """What :func:`central_jacobian` needs of a problem (identification's ``_Problem``)."""
+
+    lower: FloatArray
+    upper: FloatArray
+
+    def __call__(self, z: FloatArray, /) -> FloatArray: ...
 
 __all__ = [
     "IdentificationError",
@@ -128,9 +139,9 @@ class FitRun:
         """P_diff [Pa]: ``pressure_difference``, else front − rear, else None."""
         if self.pressure_difference is not None:
             return np.asarray(self.pressure_difference, dtype=float)
-        if self.has_discs:
-            return (np.asarray(self.front_pressure, dtype=float)
-                    - np.asarray(self.rear_pressure, dtype=float))
+        front, rear = self.front_pressure, self.rear_pressure
+        if front is not None and rear is not None:  # self.has_discs
+            return np.asarray(front, dtype=float) - np.asarray(rear, dtype=float)
         return None
 
 
@@ -225,7 +236,9 @@ class Segment:
                         self.discs, w, fitmask)
 
 
-def _clean_run(run: FitRun, index: int, min_slip_speed: float = 0.0):
+def _clean_run(run: FitRun, index: int, min_slip_speed: float = 0.0,
+               ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+                          FloatArray | None]:
     """Return the accepted rows (finite inputs, rising stamps) as arrays.
 
     The torque of rows with |ω| < ``min_slip_speed`` becomes NaN (not fitted).
@@ -254,7 +267,7 @@ def _clean_run(run: FitRun, index: int, min_slip_speed: float = 0.0):
     return (t[ok], p[ok], temp[ok], omega[ok], torque[ok], None if pd is None else pd[ok])
 
 
-def _block_means(t, x, ends):
+def _block_means(t: FloatArray, x: FloatArray, ends: IntArray) -> FloatArray:
     """dt-weighted means of x over (t[e_{k-1}], t[e_k]]; x[0] for the first block."""
     dt = np.diff(t)
     c = np.concatenate([[0.0], np.cumsum(x[1:] * dt)])
@@ -264,7 +277,7 @@ def _block_means(t, x, ends):
     return out
 
 
-def _output_means(y, ends):
+def _output_means(y: FloatArray, ends: IntArray) -> FloatArray:
     """NaN-aware plain means of y over samples (e_{k-1}, e_k]; NaN if under half valid."""
     ok = np.isfinite(y)
     c = np.concatenate([[0.0], np.cumsum(np.where(ok, y, 0.0))])
@@ -279,7 +292,9 @@ def _output_means(y, ends):
     return out
 
 
-def _decimate(run_index, t, p, temp, omega_f, torque, pdiff, discs, target_dt) -> Segment:
+def _decimate(run_index: int, t: FloatArray, p: FloatArray, temp: FloatArray,
+              omega_f: FloatArray, torque: FloatArray, pdiff: FloatArray | None, discs: bool,
+              target_dt: float) -> Segment:
     n = t.size
     dt = float(np.median(np.diff(t))) if n > 1 else target_dt
     m = max(1, int(round(target_dt / dt))) if dt > 0.0 else 1
@@ -299,7 +314,7 @@ def _decimate(run_index, t, p, temp, omega_f, torque, pdiff, discs, target_dt) -
                     _block_means(t, temp, ends), tq, pdm, discs, w, np.isfinite(tq))
 
 
-def model_block_means(y, w):
+def model_block_means(y: FloatArray, w: FloatArray) -> FloatArray:
     """Mean of the model output ``y`` over each block (linear within it; ``Segment.w``)."""
     out = y.copy()
     out[1:] = (1.0 - w[1:]) * y[:-1] + w[1:] * y[1:]
@@ -314,7 +329,8 @@ def _pack_time_constant(params: ClutchParams) -> float:
     return -1.0 / slow if slow < 0.0 else math.inf
 
 
-def prepare_segments(runs, params: ClutchParams, opts: FitOptions) -> list[Segment]:
+def prepare_segments(runs: Iterable[FitRun], params: ClutchParams,
+                     opts: FitOptions) -> list[Segment]:
     """Clean, cut at gaps, filter the slip speed and decimate every run (step 1)."""
     tau_slip = params.slip.filter_time_constant
     target_dt = 1.0 / opts.fit_rate_hz
@@ -404,7 +420,8 @@ def select_segments(segments: list[Segment], opts: FitOptions, budget: int) -> l
 
 
 # -- refusals -------------------------------------------------------------------------------
-def check_data(segments, keys, opts: FitOptions, runs) -> None:
+def check_data(segments: Sequence[Segment], keys: Sequence[str], opts: FitOptions,
+               runs: Sequence[FitRun]) -> None:
     """Raise the :class:`IdentificationError` the prepared ``segments`` deserve for ``keys``."""
     has = [s.fit & np.isfinite(s.torque) for s in segments]
     if not any(h.any() for h in has):
@@ -444,7 +461,9 @@ def check_data(segments, keys, opts: FitOptions, runs) -> None:
                 ["friction.temperature_slope"])
 
 
-def central_jacobian(problem, z, step: float, map_=map) -> np.ndarray:
+def central_jacobian(problem: _BoundedResiduals, z: FloatArray, step: float,
+                     map_: Callable[[Callable[[FloatArray], FloatArray], list[FloatArray]],
+                                    Iterable[FloatArray]] = map) -> FloatArray:
     """Central-difference Jacobian of ``problem(z)`` within ``problem.lower/upper``.
 
     ``map_``: how the 2 n evaluations are run (e.g. a thread pool's ``map``); same result.
@@ -471,7 +490,7 @@ def conditioning(jac: np.ndarray) -> float:
     return float(sv[-1] / sv[0])
 
 
-def rank_check(jac: np.ndarray, keys, tol: float) -> None:
+def rank_check(jac: np.ndarray, keys: Sequence[str], tol: float) -> None:
     """Raise UnidentifiableParameterError when the normalised Jacobian loses rank (``tol``)."""
     norms = np.linalg.norm(jac, axis=0)
     top = float(norms.max()) if norms.size else 0.0

@@ -25,7 +25,9 @@ to −ω (held 3.5 s) and back to 0 for the last second. 10 or 30 rpm, 35 or 60 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -84,7 +86,7 @@ def _grid(duration: float, dt: float) -> np.ndarray:
     return np.arange(int(round(duration / dt)) + 1) * dt
 
 
-def _steps(t: np.ndarray, levels) -> np.ndarray:
+def _steps(t: np.ndarray, levels: Iterable[tuple[float, float]]) -> np.ndarray:
     """Piecewise constant: ``levels`` = [(switch time, value), ...] from value 0 at t = 0."""
     out = np.zeros_like(t)
     for t_switch, value in levels:
@@ -92,7 +94,8 @@ def _steps(t: np.ndarray, levels) -> np.ndarray:
     return out
 
 
-def _make(name, description, t, pressure, slip, temperature, slip_rpm, active):
+def _make(name: str, description: str, t: np.ndarray, pressure: np.ndarray, slip: np.ndarray,
+          temperature: float, slip_rpm: float, active: tuple[float, float]) -> Sequence:
     return Sequence(name, description, t, pressure, slip,
                     np.full(t.shape, float(temperature)), float(slip_rpm), active)
 
@@ -197,7 +200,7 @@ def pbd_release_sequence(slip_rpm: float = 10.0, temperature: float = 35.0,
 
 
 def make_sequence(name: str, slip_rpm: float = 10.0, dt: float = 1e-3,
-                  temperature: float = 35.0, **kwargs) -> Sequence:
+                  temperature: float = 35.0, **kwargs: Any) -> Sequence:
     """Build a sequence by name: step, inc_step, ramp4, ramp12, ramp24, pbd."""
     if name == "step":
         return step_sequence(slip_rpm, dt, temperature=temperature, **kwargs)
