@@ -141,7 +141,8 @@ class FitRun:
             return np.asarray(self.pressure_difference, dtype=float)
         front, rear = self.front_pressure, self.rear_pressure
         if front is not None and rear is not None:  # self.has_discs
-            return np.asarray(front, dtype=float) - np.asarray(rear, dtype=float)
+            diff: np.ndarray = np.asarray(front, dtype=float) - np.asarray(rear, dtype=float)
+            return diff
         return None
 
 
