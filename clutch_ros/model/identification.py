@@ -58,10 +58,10 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -92,7 +92,10 @@ from clutch_ros.model.params import PARAMETER_SPECS, SPLINE_LAWS, TABLE7, Clutch
 from clutch_ros.model.simulate import simulate, simulate_columns
 
 if TYPE_CHECKING:
-    from clutch_ros.model.params import ClutchParams
+    from numpy.typing import ArrayLike
+
+    from clutch_ros.model.arraytypes import FloatArray
+    from clutch_ros.model.fit_data import Segment
 
 __all__ = [
     # errors and inputs (defined in clutch_ros.model.fit_data)
@@ -157,7 +160,7 @@ class FitResult:
     correlation: np.ndarray
     rmse: float
     pdiff_rmse: float
-    pdiff_gains: dict
+    pdiff_gains: dict[str, tuple[float, float]]
     run_rmse: tuple[float, ...]
     run_names: tuple[str, ...]
     iterations: int
@@ -169,7 +172,7 @@ class FitResult:
     converged: bool
     message: str
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-friendly summary: law, values, stderr, rmse, per-run RMSE, solver figures."""
         return {
             "law": self.law, "values": dict(self.values), "stderr": dict(self.stderr),
@@ -235,7 +238,8 @@ def initial_params(base: ClutchParams, law: str) -> ClutchParams:
 class _Problem:
     """Residuals of the scaled parameter vector z over the selected segments."""
 
-    def __init__(self, base: ClutchParams, keys, segments, opts: FitOptions):
+    def __init__(self, base: ClutchParams, keys: Sequence[str], segments: Sequence[Segment],
+                 opts: FitOptions) -> None:
         self.base = base
         self.keys = tuple(keys)
         self.segments = segments
@@ -255,8 +259,9 @@ class _Problem:
         self.n_pdiff = int(sum(int((s.fit & np.isfinite(s.pdiff)).sum()) for s in segments
                                if s.pdiff is not None)) if opts.pdiff_weight > 0.0 else 0
 
-    def _bounds(self):
-        lo, hi = [], []
+    def _bounds(self) -> tuple[FloatArray, FloatArray]:
+        lo: list[float] = []
+        hi: list[float] = []
         fr, pk = self.base.friction, self.base.pack
         for key, v0, log, scale in zip(self.keys, self.v0, self.log, self.scale):
             spec = PARAMETER_SPECS[key]
@@ -278,16 +283,16 @@ class _Problem:
                 hi.append((vmax - v0) / scale - 1e-9)
         return np.array(lo), np.array(hi)
 
-    def values(self, z) -> np.ndarray:
+    def values(self, z: ArrayLike) -> FloatArray:
         z = np.asarray(z, dtype=float)
         return np.where(self.log, self.v0 * np.exp(np.where(self.log, z, 0.0)),
                         self.v0 + self.scale * z)
 
-    def params(self, z) -> ClutchParams:
+    def params(self, z: ArrayLike) -> ClutchParams:
         vals = self.values(z)
         return self.base.updated({k: float(v) for k, v in zip(self.keys, vals)})
 
-    def simulate(self, params: ClutchParams):
+    def simulate(self, params: ClutchParams) -> list[tuple[FloatArray, ...]]:
         """Block-mean model outputs (torque, front and rear pressure) per segment."""
         model = PackModel(params)
         out = []
@@ -301,14 +306,17 @@ class _Problem:
             out.append(tuple(model_block_means(y, s.w) for y in ys))
         return out
 
-    def residuals_parts(self, params: ClutchParams, record: dict | None = None):
+    def residuals_parts(self, params: ClutchParams,
+                        record: dict[int, tuple[float, float]] | None = None,
+                        ) -> tuple[list[FloatArray], list[FloatArray]]:
         """Torque residuals [N m] and P_diff residuals [Pa], one array per segment.
 
         ``record``: a dict that receives the fitted front/rear disc gains per run (the final
         evaluation's; the solver's evaluations, some of them in threads, record none).
         """
-        torque_res, pdiff_res = [], []
-        rows: dict[int, list] = {}
+        torque_res: list[FloatArray] = []
+        pdiff_res: list[FloatArray] = []
+        rows: dict[int, list[tuple[int, FloatArray, FloatArray, FloatArray]]] = {}
         for i, (s, (tq, front, rear)) in enumerate(zip(self.segments, self.simulate(params))):
             ok = s.fit & np.isfinite(s.torque)
             torque_res.append(s.torque[ok] - tq[ok])
@@ -332,7 +340,7 @@ class _Problem:
                 pdiff_res[i] = pd - (gains[0] * front - gains[1] * rear)
         return torque_res, pdiff_res
 
-    def __call__(self, z) -> np.ndarray:
+    def __call__(self, z: FloatArray) -> FloatArray:
         with self._lock:
             self.calls += 1
         torque_res, pdiff_res = self.residuals_parts(self.params(z))
@@ -452,19 +460,19 @@ def _workers(asked: int, columns: int) -> int:
 class _Deadline:
     """least_squares callback: stop when the next iteration would end after the deadline."""
 
-    def __init__(self, start: float, seconds: float | None):
+    def __init__(self, start: float, seconds: float | None) -> None:
         self.start = start
         self.seconds = seconds
         self.last = time.perf_counter()
 
-    def __call__(self, intermediate_result) -> None:
+    def __call__(self, intermediate_result: object) -> None:
         now = time.perf_counter()
         step, self.last = now - self.last, now
         if self.seconds is not None and now - self.start + step > self.seconds:
             raise StopIteration
 
 
-def _scale_mu(params: ClutchParams, segments) -> ClutchParams:
+def _scale_mu(params: ClutchParams, segments: Iterable[Segment]) -> ClutchParams:
     """Rescale μ_ref so Eq. 1 matches the measured torque in the least-squares sense."""
     num = den = 0.0
     for s in segments:
@@ -502,7 +510,7 @@ class RunEvaluation:
     pressure_difference: np.ndarray
     spline_force: np.ndarray
     measured_pdiff: np.ndarray | None = None
-    extra: dict = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def evaluate(params: ClutchParams, run: FitRun) -> RunEvaluation:
@@ -511,6 +519,8 @@ def evaluate(params: ClutchParams, run: FitRun) -> RunEvaluation:
                            run.torque, on_reject="skip")
     ok = batch.accepted
     meas = batch.measured_torque
+    spline = batch.spline_friction_force
+    assert spline is not None  # per_lamella, the default
     return RunEvaluation(
         name=run.name, law=params.spline.law, rmse=rmse(meas[ok], batch.modelled_torque[ok]),
         reference_rmse=rmse(meas[ok], batch.reference_torque[ok]),
@@ -518,5 +528,5 @@ def evaluate(params: ClutchParams, run: FitRun) -> RunEvaluation:
         modelled=batch.modelled_torque[ok], reference=batch.reference_torque[ok],
         pressure=batch.actuating_pressure[ok],
         pressure_difference=batch.pressure_difference[ok],
-        spline_force=batch.spline_friction_force[ok],
+        spline_force=spline[ok],
         measured_pdiff=None if run.measured_pdiff is None else run.measured_pdiff[ok])
