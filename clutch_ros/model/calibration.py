@@ -32,11 +32,17 @@ force / A and ``P_diff = front − rear`` (thesis Fig. 20).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from clutch_ros.model.arraytypes import BoolArray, FloatArray
 from clutch_ros.model.errors import CalibrationError
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 __all__ = [
     "CalibrationError",
@@ -91,19 +97,19 @@ class SensorCalibration:
     samples: int
     rmse: tuple[float, float]
 
-    def sensor_forces(self, voltages) -> np.ndarray:
+    def sensor_forces(self, voltages: ArrayLike) -> FloatArray:
         """Return each sensor's force (n, 2k) [N] for voltages (n, 2k) [V]."""
         v = _voltages(voltages, 2 * self.sensors_per_lamella)
         a, b = self.coefficients[:, 0], self.coefficients[:, 1]
         return a * v * v + b * v
 
-    def lamella_forces(self, voltages) -> tuple[np.ndarray, np.ndarray]:
+    def lamella_forces(self, voltages: ArrayLike) -> tuple[FloatArray, FloatArray]:
         """Return (front, rear) lamella forces (n,) [N]: the sums over each disc's sensors."""
         f = self.sensor_forces(voltages)
         k = self.sensors_per_lamella
         return f[:, :k].sum(axis=1), f[:, k:].sum(axis=1)
 
-    def pressures(self, voltages, piston_area: float) -> LamellaPressures:
+    def pressures(self, voltages: ArrayLike, piston_area: float) -> LamellaPressures:
         """Return front/rear lamella pressure and P_diff [Pa] for ``piston_area`` [m²]."""
         if not piston_area > 0.0:
             raise CalibrationError(f"piston area must be > 0 m^2, got {piston_area!r}")
@@ -111,14 +117,14 @@ class SensorCalibration:
         pf, pr = front / piston_area, rear / piston_area
         return LamellaPressures(pf, pr, pf - pr, front, rear)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """Return a JSON-friendly dict (coefficients as lists of [a, b])."""
         return {"method": self.method, "sensors_per_lamella": self.sensors_per_lamella,
                 "coefficients": self.coefficients.tolist(), "samples": self.samples,
                 "rmse_front_n": self.rmse[0], "rmse_rear_n": self.rmse[1]}
 
     @classmethod
-    def from_dict(cls, data: dict) -> SensorCalibration:
+    def from_dict(cls, data: Mapping[str, Any]) -> SensorCalibration:
         """Inverse of :meth:`to_dict`."""
         coef = np.asarray(data["coefficients"], dtype=float)
         k = int(data.get("sensors_per_lamella", coef.shape[0] // 2))
@@ -152,9 +158,9 @@ class CalibrationComparison:
     difference_max: float
     pdiff_correlation: float
     relative: float
-    extra: dict = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """Return a JSON-friendly dict."""
         return {"same_force": self.same_force.to_dict(),
                 "same_sensor": self.same_sensor.to_dict(),
@@ -171,7 +177,7 @@ class CalibrationComparison:
                 f"{self.pdiff_correlation:.3f})")
 
 
-def _voltages(voltages, width: int | None = None) -> np.ndarray:
+def _voltages(voltages: ArrayLike, width: int | None = None) -> FloatArray:
     v = np.asarray(voltages, dtype=float)
     if v.ndim != 2 or v.shape[1] < 2 or v.shape[1] % 2:
         raise CalibrationError(f"voltages must be an (n, 2k) array (front then rear sensors), "
@@ -182,7 +188,8 @@ def _voltages(voltages, width: int | None = None) -> np.ndarray:
     return v
 
 
-def _select(voltages, actuating_force, mask, clip_voltage):
+def _select(voltages: ArrayLike, actuating_force: ArrayLike, mask: ArrayLike | None,
+            clip_voltage: float) -> tuple[FloatArray, FloatArray]:
     v = _voltages(voltages)
     force = np.asarray(actuating_force, dtype=float)
     if force.shape != (v.shape[0],):
@@ -206,7 +213,7 @@ def _select(voltages, actuating_force, mask, clip_voltage):
     return v, force
 
 
-def _lstsq(columns: np.ndarray, target: np.ndarray, what: str) -> np.ndarray:
+def _lstsq(columns: FloatArray, target: FloatArray, what: str) -> FloatArray:
     scale = np.linalg.norm(columns, axis=0)
     if (scale <= 1e-12 * max(float(scale.max()), 1e-300)).any() or not scale.max() > 0.0:
         raise CalibrationError(f"{what}: voltage is always 0 V (dead or unconnected sensor)")
@@ -216,14 +223,16 @@ def _lstsq(columns: np.ndarray, target: np.ndarray, what: str) -> np.ndarray:
         raise CalibrationError(f"{what}: v and v² are collinear (the voltage takes a single "
                                "value), the polynomial is not determined")
     coef, *_ = np.linalg.lstsq(cols, target, rcond=None)
-    return coef / scale
+    out: FloatArray = coef / scale
+    return out
 
 
 def _names(k: int) -> list[str]:
     return [f"front {i + 1}" for i in range(k)] + [f"rear {i + 1}" for i in range(k)]
 
 
-def _rmse_groups(coefficients, v, force, k):
+def _rmse_groups(coefficients: FloatArray, v: FloatArray, force: FloatArray,
+                 k: int) -> tuple[float, float]:
     a, b = coefficients[:, 0], coefficients[:, 1]
     f = a * v * v + b * v
     out = []
@@ -233,7 +242,8 @@ def _rmse_groups(coefficients, v, force, k):
     return out[0], out[1]
 
 
-def calibrate_same_force(voltages, actuating_force, mask=None, *,
+def calibrate_same_force(voltages: ArrayLike, actuating_force: ArrayLike,
+                         mask: ArrayLike | None = None, *,
                          clip_voltage: float = 5.9) -> SensorCalibration:
     """Fit Eqs. 6–9: ``F_act / k = a_n v_n² + b_n v_n`` for each sensor n.
 
@@ -254,7 +264,8 @@ def calibrate_same_force(voltages, actuating_force, mask=None, *,
                              _rmse_groups(coef, v, force, k))
 
 
-def calibrate_same_sensor(voltages, actuating_force, mask=None, *,
+def calibrate_same_sensor(voltages: ArrayLike, actuating_force: ArrayLike,
+                          mask: ArrayLike | None = None, *,
                           clip_voltage: float = 5.9) -> SensorCalibration:
     """Fit Eq. 10: ``F_act = Σ_n (a v_n² + b v_n)``, one (a, b) per disc (front, rear).
 
@@ -272,7 +283,8 @@ def calibrate_same_sensor(voltages, actuating_force, mask=None, *,
                              _rmse_groups(coef, v, force, k))
 
 
-def calibrate(voltages, actuating_force, method: str = "same_force", mask=None, *,
+def calibrate(voltages: ArrayLike, actuating_force: ArrayLike, method: str = "same_force",
+              mask: ArrayLike | None = None, *,
               clip_voltage: float = 5.9) -> SensorCalibration:
     """Fit the calibration ``method`` (:data:`METHODS`); see the two functions."""
     if method == "same_force":
@@ -283,7 +295,8 @@ def calibrate(voltages, actuating_force, method: str = "same_force", mask=None, 
                            f"{', '.join(METHODS)})")
 
 
-def compare_methods(voltages, actuating_force, piston_area: float, mask=None, *,
+def compare_methods(voltages: ArrayLike, actuating_force: ArrayLike, piston_area: float,
+                    mask: ArrayLike | None = None, *,
                     clip_voltage: float = 5.9) -> CalibrationComparison:
     """Fit both methods on the same samples and compare their pressure estimates.
 
@@ -298,7 +311,7 @@ def compare_methods(voltages, actuating_force, piston_area: float, mask=None, *,
     pf = same_force.pressures(v, piston_area)
     ps = same_sensor.pressures(v, piston_area)
 
-    def rms(x):
+    def rms(x: FloatArray) -> float:
         return float(np.sqrt(np.mean(x * x)))
 
     d = pf.difference - ps.difference
@@ -311,8 +324,8 @@ def compare_methods(voltages, actuating_force, piston_area: float, mask=None, *,
         float(np.max(np.abs(d))), corr, rms(d) / base if base > 0.0 else float("nan"))
 
 
-def quasi_static_mask(t, pressure, window: float = 0.5, tolerance: float = 0.01,
-                      floor: float = 0.5e5) -> np.ndarray:
+def quasi_static_mask(t: ArrayLike, pressure: ArrayLike, window: float = 0.5,
+                      tolerance: float = 0.01, floor: float = 0.5e5) -> BoolArray:
     """Return samples whose pressure stayed within ±tolerance over the last ``window`` s.
 
     ``t`` [s], ``pressure`` [Pa]; the band is ``tolerance · max(|p|, floor)`` around the
@@ -339,4 +352,5 @@ def quasi_static_mask(t, pressure, window: float = 0.5, tolerance: float = 0.01,
     band = tolerance * np.maximum(np.abs(p), floor)
     full = (t - t[0] >= window) & (np.arange(n) >= size - 1)
     with np.errstate(invalid="ignore"):
-        return full & (hi - p <= band) & (p - lo <= band)
+        quiet: BoolArray = full & (hi - p <= band) & (p - lo <= band)
+        return quiet
