@@ -20,6 +20,7 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from clutch_ros.cli.dispatch import emit_json
 from clutch_ros.cli.processes import NodeProcess, node_env
@@ -110,7 +111,8 @@ def run(args) -> int:
         return 0
     _check(description)
     if args.print_only:
-        commands = [{"name": n.full_name, "executable": n.executable, "args": n.ros_args()}
+        commands: list[dict[str, Any]] = [
+            {"name": n.full_name, "executable": n.executable, "args": n.ros_args()}
                     for n in description.nodes]
         if args.json:
             emit_json(commands)

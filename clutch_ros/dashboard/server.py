@@ -28,7 +28,7 @@ import re
 import threading
 import time
 from collections.abc import Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from clutch_ros.dashboard.errors import DashboardError
 from clutch_ros.dashboard.topics import (
@@ -38,6 +38,9 @@ from clutch_ros.dashboard.topics import (
     DashboardTopic,
     message_definition,
 )
+
+if TYPE_CHECKING:
+    from foxglove.websocket import WebSocketServer
 
 __all__ = ["DEFAULT_BACKLOG", "DEFAULT_HOST", "DEFAULT_PORT", "DashboardServer", "absolute"]
 
@@ -104,6 +107,8 @@ class DashboardServer:
     Use as a context manager or call :meth:`close`.
     """
 
+    _server: WebSocketServer | None  # None once closed
+
     def __init__(
         self,
         host: str = DEFAULT_HOST,
@@ -152,7 +157,10 @@ class DashboardServer:
                 host=host,
                 port=int(port),
                 context=self._context,
-                server_listener=_Listener(self),
+                # the SDK calls the callbacks a listener has; its ServerListener Protocol
+                # lists every callback (with no-op bodies), and subclassing it here would load
+                # the native SDK on import
+                server_listener=_Listener(self),  # type: ignore[arg-type]
                 message_backlog_size=self.backlog,
             )
         except Exception as err:  # noqa: BLE001 - the SDK raises its own error types
@@ -165,7 +173,10 @@ class DashboardServer:
     @property
     def port(self) -> int:
         """The TCP port the server listens on (the chosen one when started with port 0)."""
-        return int(self._server.port)
+        server = self._server
+        if server is None:
+            raise DashboardError("the dashboard server is closed")
+        return int(server.port)
 
     @property
     def url(self) -> str:

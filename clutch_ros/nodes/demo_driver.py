@@ -10,11 +10,13 @@ progress line.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from clutch_msgs.msg import ClutchEstimate, PressureCommand, RigState, TorqueRequest
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
+from rclpy.task import Future
 
 from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 from clutch_ros.rig.request_profile import request_at, slip_at
@@ -34,7 +36,7 @@ class DemoDriver(Node):
         self.latest = {"rig": None, "estimate": None, "command": None}
         self.counts = {"rig": 0, "estimate": 0, "command": 0, "request": 0}
         self._slip_set: float | None = None
-        self._slip_future = None
+        self._slip_future: Future[Any] | None = None
         self._params = AsyncParameterClient(self, rig_node)
         self._pub = self.create_publisher(TorqueRequest, "torque_request", reliable_qos())
         self.create_subscription(RigState, "rig_state", self._keep("rig"), sensor_qos())

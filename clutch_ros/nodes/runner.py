@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
 
 from clutch_ros.errors import ClutchError
 from clutch_ros.nodes.diagnostics import Diagnostics
@@ -71,7 +72,7 @@ def _executor_option(argv: list[str]) -> tuple[str, list[str]]:
     return kind, out
 
 
-def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[[], object],
+def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[[], Node],
              args: Sequence[str] | None = None) -> int:
     """Answer --help, or init rclpy, build the node with ``factory`` and spin until shutdown.
 
@@ -89,7 +90,7 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     # into a clean shutdown even while the executor waits in C; a Python-level handler would
     # only run when some callback wakes the executor.
     rclpy.init(args=[sys.argv[0], *argv])
-    node = None
+    node: Node | None = None
     started = False
     try:
         node = factory()

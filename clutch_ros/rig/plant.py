@@ -188,8 +188,8 @@ def _split_rng(seed: Any) -> tuple[np.random.Generator, np.random.Generator]:
         a, b = seed.spawn(2)
         return a, b
     if isinstance(seed, int | np.integer):
-        a, b = np.random.SeedSequence(int(seed)).spawn(2)
-        return np.random.default_rng(a), np.random.default_rng(b)
+        sa, sb = np.random.SeedSequence(int(seed)).spawn(2)
+        return np.random.default_rng(sa), np.random.default_rng(sb)
     raise RigConfigError(f"seed must be an integer or a numpy Generator, got {seed!r}")
 
 
