@@ -118,7 +118,8 @@ class BagPlayerNode(Node):
         self._lock = threading.Lock()
         self._paused = False
         self._bag_ns = None  # bag time of the last published message [ns]
-        self._anchor = None  # (wall [s], bag [ns]) the timing counts from; None: re-anchor
+        # (wall [s], bag [ns]) the timing counts from; None: re-anchor
+        self._anchor: tuple[float, int] | None = None
         self._resume = threading.Event()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.create_service(SetPaused, "~/set_paused", self._on_set_paused)
@@ -241,8 +242,9 @@ class BagPlayerNode(Node):
                 paused = self._paused
                 wait = math.inf if paused else self._due(bag_ns) - time.monotonic()
                 held = self._bag_ns if self._bag_ns is not None else bag_ns
-                now_bag = held if paused else self._anchor[1] + int(
-                    (time.monotonic() - self._anchor[0]) * self._cfg["player.rate"] * 1e9)
+                anchor = self._anchor  # set by _due() above unless paused
+                now_bag = held if paused or anchor is None else anchor[1] + int(
+                    (time.monotonic() - anchor[0]) * self._cfg["player.rate"] * 1e9)
                 period = self._cfg["player.clock_period"]
             if wait <= 0.0:
                 return True

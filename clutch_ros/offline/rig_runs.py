@@ -56,7 +56,11 @@ def golden_scenario(name: str) -> tuple[Any, int]:
         table, seq, rpm, seed = GOLDEN_RUNS[name]
     except KeyError:
         raise ConfigError(f"unknown golden run {name!r}; known: {', '.join(GOLDEN_RUNS)}") from None
-    scenario = table3_run(seq, rpm) if table == 3 else table4_run(seq)
+    if table == 3:
+        assert rpm is not None  # every Table 3 run has its slip speed
+        scenario: Any = table3_run(seq, rpm)
+    else:
+        scenario = table4_run(seq)
     return scenario, seed
 
 

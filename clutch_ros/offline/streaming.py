@@ -91,6 +91,7 @@ class StreamedEstimate:
 
     def _feed(self, pieces: list[tuple[np.ndarray, ...]]) -> None:
         joined = [np.concatenate(cols) for cols in zip(*pieces)]
+        assert self.stream is not None  # made before the first piece was submitted
         self.stream.feed(*joined)
 
     def close(self) -> None:

@@ -135,6 +135,7 @@ class RigSimulator:
             return point.requested_pressure
         if self.port is not None:
             return self.port.requested_pressure(t)
+        assert self.pressure_source is not None  # __init__: closed loop needs port or source
         return float(self.pressure_source(t, self.signals))
 
     def step(self) -> RigSignals:
