@@ -133,7 +133,7 @@ class BagStream:
                 (int(m.timestamp_ns), 0, m.topic, bytes(m.msg))
                 for m in reader.messages(self._raw, raw=True)
             )
-            streams = [raw]
+            streams: list[Iterator[tuple[int, int, str, bytes]]] = [raw]
             if self._estimates is not None:
                 streams.append(self._computed())
             for time_ns, _, topic, data in heapq.merge(*streams, key=lambda m: (m[0], m[1])):

@@ -36,7 +36,7 @@ from clutch_ros.nodes.parameters import ParamSpec, declare_params
 from clutch_ros.nodes.runner import run_node
 from clutch_ros.rig import RigPlant, RigSimulator
 from clutch_ros.rig.can_io import RigCanPort
-from clutch_ros.rig.scenario import ScenarioPoint, scenario_from_spec
+from clutch_ros.rig.scenario import Scenario, ScenarioPoint, scenario_from_spec
 
 NAME = "rig_sim"
 _AT_START = "read-only: the bus is opened at start"
@@ -68,8 +68,11 @@ PARAMS = [
 _READ_ONLY = frozenset(spec.name for spec in PARAMS if spec.read_only)
 
 
-class _OperatorScenario:
-    """Closed loop with the slip speed set by the operator (the node parameter)."""
+class _OperatorScenario(Scenario):
+    """Closed loop with the slip speed set by the operator (the node parameter).
+
+    A :class:`Scenario` without its constructor: the attributes below are fixed.
+    """
 
     closed_loop = True
     name = "operator"
@@ -77,10 +80,10 @@ class _OperatorScenario:
     initial_lamella_temperature = 35.0
     repeat = False
 
-    def __init__(self, slip_speed: float):
+    def __init__(self, slip_speed: float) -> None:  # (Scenario.__init__ not called)
         self.slip_speed = slip_speed
 
-    def at(self, t: float):
+    def at(self, t: float) -> ScenarioPoint:
         """Return the operator's command at ``t`` [s]: bus pressure, held slip speed."""
         return ScenarioPoint(math.nan, self.slip_speed, math.nan)
 
@@ -130,8 +133,8 @@ class RigSimNode(Node):
                 return SetParametersResult(successful=False,
                                            reason=f"{p.name} cannot change at run time")
         for p in params:
-            if p.name == "rig.slip_speed":
-                self._scenario.slip_speed = float(p.value)
+            if p.name == "rig.slip_speed" and isinstance(self._scenario, _OperatorScenario):
+                self._scenario.slip_speed = float(p.value)  # (checked above)
         return SetParametersResult(successful=True)
 
     def _diagnose(self):

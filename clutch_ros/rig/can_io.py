@@ -152,7 +152,7 @@ class PumpRequestMonitor:
         resync = previous is None or now - self._last_frame_time > self.timeout
         self._last_counter = counter
         self._last_frame_time = now
-        if not resync and counter != (previous + 1) % 16:
+        if not resync and previous is not None and counter != (previous + 1) % 16:
             self.bad_counter += 1
             self.counter_fault = self._e2e_error = True
             return False
