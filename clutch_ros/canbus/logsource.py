@@ -19,7 +19,7 @@ import os
 import threading
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import can
 from can.io.player import MESSAGE_READERS
@@ -28,7 +28,17 @@ from clutch_ros.canbus.assembler import RigStateAssembler
 from clutch_ros.canbus.errors import LogFileError
 from clutch_ros.rigstate import RigSample
 
-__all__ = ["LogSource", "supported_suffixes"]
+__all__ = ["Assembler", "LogSource", "supported_suffixes"]
+
+
+class Assembler(Protocol):
+    """What :meth:`LogSource.samples` needs: a :class:`RigStateAssembler` or a stand-in."""
+
+    def feed(self, msg: can.Message) -> object:
+        """Take one frame."""
+
+    def snapshot(self, now: float | None = None) -> RigSample:
+        """Return the sample assembled so far, aged at ``now``."""
 
 
 def supported_suffixes() -> tuple[str, ...]:
@@ -160,7 +170,7 @@ class LogSource:
 
     def samples(
         self,
-        assembler: RigStateAssembler,
+        assembler: Assembler,
         period: float,
         stop: threading.Event | None = None,
         max_gap: float = 1.0,

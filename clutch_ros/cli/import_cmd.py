@@ -23,6 +23,7 @@ from clutch_ros.bag.mapped_import import MDF_SUFFIXES, import_mapped
 from clutch_ros.bag.typestore import CAN_FRAME, RIG_STATE, can_frame_msg, rig_state_msg
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.canbus import LogSource, RigDatabase, RigStateAssembler
+from clutch_ros.canbus.logsource import Assembler
 from clutch_ros.cli.dispatch import emit_json
 from clutch_ros.errors import ClutchError
 from clutch_ros.rigstate import msg_fields
@@ -170,6 +171,7 @@ def _import_can(path: Path, target: Path, args, progress) -> dict:
         frame_topic = writer.add_topic("/can_frames", CAN_FRAME) if args.frames else None
 
         def store_frame(msg) -> None:
+            assert frame_topic is not None  # tapped only with --frames
             stamp_ns = _stamp_ns(path, msg.timestamp)
             data = bytes(msg.data)
             counts["truncated"] += len(data) > 8
@@ -178,7 +180,7 @@ def _import_can(path: Path, target: Path, args, progress) -> dict:
                 is_rtr=msg.is_remote_frame, is_extended=msg.is_extended_id,
                 is_error=msg.is_error_frame))
 
-        feeder = _Tap(assembler, store_frame) if frame_topic else assembler
+        feeder: Assembler = _Tap(assembler, store_frame) if frame_topic else assembler
         last_ns = None
         for n, sample in enumerate(source.samples(feeder, args.period)):
             if n % 2000 == 0:

@@ -24,6 +24,7 @@ accepted in YAML files, ``-p`` and live sets, with a deprecation warning
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 from clutch_ros.canbus import PumpGateConfig
 from clutch_ros.canbus.pump_gate import PUMP_PERIOD
@@ -100,7 +101,7 @@ LIVE = frozenset(s.name for s in PARAMS if not s.read_only)
 RENAMED = {"pump.rate_limit": "pump.rise_rate_limit"}
 
 
-def gate_config(values: Mapping[str, object]) -> PumpGateConfig:
+def gate_config(values: Mapping[str, Any]) -> PumpGateConfig:
     """Return the pump gate limits of the parameter values ``values``."""
     return PumpGateConfig(max_pressure=values["pump.max_pressure"],
                           rate_limit_up=values["pump.rise_rate_limit"],
@@ -110,12 +111,12 @@ def gate_config(values: Mapping[str, object]) -> PumpGateConfig:
                           max_step_interval=values["pump.period"])
 
 
-def signal_specs(values: Mapping[str, object]) -> dict[str, str]:
+def signal_specs(values: Mapping[str, Any]) -> dict[str, str]:
     """Return the signal map ``{key: spec}`` of the ``map.*`` parameter values."""
     return {key: str(values[f"map.{key}"]) for key in KEYS}
 
 
-def check_change(values: Mapping[str, object], dbc_pump_max: float | None) -> str | None:
+def check_change(values: Mapping[str, Any], dbc_pump_max: float | None) -> str | None:
     """Return why the parameter set ``values`` (current merged with proposed) is refused.
 
     ``dbc_pump_max`` [Pa]: the DBC maximum of the pump request (None before configure).
