@@ -155,11 +155,11 @@ class ControllerNode(Node):
 
     def _tick(self) -> None:
         stale = self._stale_reason(self._now())
-        if stale:
-            out = self._ctl.fail_safe(stale)
+        est = self._estimate
+        if stale or est is None:  # (no estimate yet: the peer check reports it silent)
+            out = self._ctl.fail_safe(stale or "no estimate yet")
             self._counts["failsafe"] += 1
         else:
-            est = self._estimate
             # scale 0 = an estimator without adaptation fields (the message default): scale 1
             scale = est.friction_scale if est.friction_scale > 0.0 else 1.0
             if self._cfg["controller.use_adapted_model"]:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from clutch_ros.model import ClutchEstimator
-from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimator
+from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimate, AdaptiveEstimator
 from clutch_ros.model.control import TorqueController
 from clutch_ros.model.metrics import longest_run
 from clutch_ros.offline.steady_state import steady_state_error
@@ -82,6 +82,7 @@ def run_closed_loop(estimator_params, plant, profile: list[Segment], settings=No
     if not (math.isfinite(command_delay) and command_delay >= 0.0):
         raise ValueError(f"command_delay must be a finite delay >= 0 s, got {command_delay!r}")
     controller = TorqueController(estimator_params, settings)
+    estimator: AdaptiveEstimator | ClutchEstimator
     if adaptation is not None:
         estimator = AdaptiveEstimator(estimator_params, adaptation)
     else:
@@ -124,7 +125,7 @@ def run_closed_loop(estimator_params, plant, profile: list[Segment], settings=No
         if i % est_every == 0:
             res = estimator.update(t, signals.actuating_pressure, signals.lamella_temperature,
                                    signals.slip_speed, signals.measured_torque)
-            if adaptation is not None:
+            if isinstance(res, AdaptiveEstimate):  # (adaptation is not None)
                 estimate, status = res.estimate, res.adaptation
             else:
                 estimate = res

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -110,7 +111,7 @@ def write_report(models: Mapping[str, Sequence], out_dir, prefix: str = "validat
         raise ClutchError("the validation report needs at least one model with evaluated runs")
     names = [ev.name for ev in models[labels[0]]]
     area = 3.75e-3 if area is None else float(area)
-    summary = {"rmse": rmse_table(models), "xcorr_outside": {}, "files": {}}
+    summary: dict[str, Any] = {"rmse": rmse_table(models), "xcorr_outside": {}, "files": {}}
     paths = [plot_rmse(models, out / f"{prefix}_rmse.png", figures=figures)]
     summary["rmse_file"] = paths[-1]
     for i, name in enumerate(names):
