@@ -69,15 +69,16 @@ def run(args) -> int:
             "within_10pct": r.within_10pct, "worst_overshoot": r.worst_overshoot,
             "longest_overshoot_s": r.longest_overshoot_s,
             "steady_state_error": r.steady_state_error,
-            "friction_scale": float(r.friction_scale[-1])}
+            "friction_scale": (float(r.friction_scale[-1]) if r.friction_scale is not None
+                               else float("nan"))}  # (run_closed_loop always records it)
     if args.json:
         emit_json(rows)
         return 0
     sys.stdout.write(f"{'settings':26s} {'within ±10 %':>12s} {'worst over':>10s} "
                      f"{'longest >1.1':>12s} {'plateau err':>11s} {'mu scale':>8s}\n")
-    for name, r in rows.items():
-        sys.stdout.write(f"{name:26s} {100 * r['within_10pct']:11.1f}% "
-                         f"{r['worst_overshoot']:10.3f} {r['longest_overshoot_s']:11.2f}s "
-                         f"{100 * r['steady_state_error']:10.2f}% "
-                         f"{r['friction_scale']:8.4f}\n")
+    for name, row in rows.items():
+        sys.stdout.write(f"{name:26s} {100 * row['within_10pct']:11.1f}% "
+                         f"{row['worst_overshoot']:10.3f} {row['longest_overshoot_s']:11.2f}s "
+                         f"{100 * row['steady_state_error']:10.2f}% "
+                         f"{row['friction_scale']:8.4f}\n")
     return 0

@@ -22,7 +22,9 @@ from __future__ import annotations
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from clutch_ros.bag.recover import recover_bag
 from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
@@ -124,6 +126,7 @@ def run(args) -> int:
         recoveries.append((bag, recovery, spent))
     # serially, each bag's result is dropped before the next bag is read (bags may be
     # large); in parallel, the workers return summaries only (whole results with --report)
+    done: Iterator[Any]
     if adaptive.enabled:
         done = (_adaptive_job(adaptive, item, args) for item in items)
     elif serial:

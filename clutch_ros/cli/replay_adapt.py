@@ -55,7 +55,7 @@ class AdaptiveRun:
         if self.save_to is not None and self.save_to.is_dir():
             raise ClutchError(f"--save-params {self.save_to}: is a directory")
         self.bags: list[str] = []
-        self.estimator = None
+        self.estimator: AdaptiveEstimator | None = None  # with --adapt
         if self.enabled:
             try:
                 settings = AdaptationSettings(spline_gain=args.adapt_spline_gain,
@@ -66,6 +66,7 @@ class AdaptiveRun:
 
     def replay(self, bag, topic=None):
         """Replay one bag adaptively; return ``(ReplayResult, writer(out, storage))``."""
+        assert self.estimator is not None  # called with --adapt only
         run = adaptive_replay([bag], self.estimator.base_params, estimator=self.estimator,
                               topic=topic)[0]
         self.bags.append(Path(bag).name)
@@ -76,7 +77,7 @@ class AdaptiveRun:
 
     def finish(self) -> str | None:
         """Save the adapted parameters when asked; return the file written (or None)."""
-        if self.save_to is None:
+        if self.save_to is None or self.estimator is None:  # (--save-params needs --adapt)
             return None
         save_adapted_params(self.save_to, self.estimator, ", ".join(self.bags))
         return str(self.save_to)
