@@ -140,6 +140,7 @@ def run(args) -> int:
     if args.law == "auto":
         auto = fit_auto(runs, validation, base, fixed=args.fix, options=options)
         result = auto.best.result
+        assert result is not None  # the best law is chosen among those that fitted
     else:
         keys = free_keys(args.law, runs, args.fix)
         result = fit(runs, args.law, base, fixed=args.fix, free=keys,
