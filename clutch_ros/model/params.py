@@ -47,10 +47,7 @@ import difflib
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
-from typing import TYPE_CHECKING, Any
-
-if TYPE_CHECKING:
-    from _typeshed import DataclassInstance
+from typing import Any, ClassVar, Protocol
 
 from clutch_ros.model.errors import ParameterError
 from clutch_ros.model.laws import LawNames, law_info
@@ -222,7 +219,13 @@ TABLE7: dict[tuple[str, int], Table7Entry] = {
 }
 
 
-def _validated(obj: DataclassInstance, namespace: str) -> None:
+class _Dataclass(Protocol):
+    """Any dataclass instance (what ``dataclasses.fields`` takes)."""
+
+    __dataclass_fields__: ClassVar[dict[str, Any]]
+
+
+def _validated(obj: _Dataclass, namespace: str) -> None:
     for f in fields(obj):
         spec = PARAMETER_SPECS[f"{namespace}.{f.name}"]
         object.__setattr__(obj, f.name, spec.check(getattr(obj, f.name)))
