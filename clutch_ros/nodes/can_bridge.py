@@ -178,10 +178,13 @@ class CanBridgeNode(LifecycleNode):
             st.log_thread = threading.Thread(target=self._replay, name="can_log", daemon=True)
             st.log_thread.start()
         else:
+            # configured: these stay the same objects until cleanup (timers end at deactivate)
+            gate, pacer = st.gate, st.pacer
+            assert gate is not None and pacer is not None
             self._pump_timer = self.create_timer(self._cfg["pump.period"],
-                                                 lambda: self._send(st.gate.tick()))
+                                                 lambda: self._send(gate.tick()))
             self._flush_timer = self.create_timer(self._flush_period(), lambda: (
-                self._publish_latest(st.pacer.flush)))
+                self._publish_latest(pacer.flush)))
         st.active, st.lifecycle = True, "active"
         return result
 
@@ -222,7 +225,7 @@ class CanBridgeNode(LifecycleNode):
         st.stop.set()
         if st.log_thread is not None:
             st.log_thread.join(timeout=2.0)
-        if was_active and st.bus is not None:
+        if was_active and st.bus is not None and st.gate is not None:  # (gate: with the bus)
             self._send(st.gate.zero(why), timeout=0.05)
 
     def _close_bus(self) -> None:
@@ -278,12 +281,15 @@ class CanBridgeNode(LifecycleNode):
         if not name:
             return None
         assembler = self.state.assembler
+        assert assembler is not None  # configure made it (callers check)
         message = assembler.map.messages.get(name, name)
         return assembler.db.frame(message).key
 
     def _flush_period(self) -> float:
         period = 1.0 / self._cfg["bridge.rate"]  # with publish_on: only flushes held frames
-        return period if self.state.pacer.trigger is None else max(period, FLUSH_PERIOD)
+        pacer = self.state.pacer
+        assert pacer is not None  # configured
+        return period if pacer.trigger is None else max(period, FLUSH_PERIOD)
 
     # -- receive --------------------------------------------------------------------------
     def _on_link_event(self, event) -> None:  # the bus rate-limits its own log lines
@@ -299,7 +305,9 @@ class CanBridgeNode(LifecycleNode):
     def _on_frame(self, frame) -> None:
         """Notifier thread: frame -> live sample -> (pacer) -> rig_state when active."""
         st = self.state
-        assembler = st.assembler
+        assembler, gate, pacer = st.assembler, st.gate, st.pacer
+        # the Notifier starts after configure made them, and stops before cleanup
+        assert assembler is not None and gate is not None and pacer is not None
         try:
             key = assembler.feed(frame)
             if not st.active:
@@ -308,22 +316,23 @@ class CanBridgeNode(LifecycleNode):
                 self._raw_pub.publish(can_frame_to_ros(frame, st.offset or 0.0))
             if key is None:
                 return
-            if key == st.gate.codec.spec.key:  # ours never come back (echoes removed)
+            if key == gate.codec.spec.key:  # ours never come back (echoes removed)
                 st.foreign_pump_requests += 1
-            self._publish_latest(st.pacer.on_frame, key, bus_time=True)
+            self._publish_latest(pacer.on_frame, key, bus_time=True)
         except Exception as err:  # noqa: BLE001 - counted; the Notifier thread must live
             assembler.on_error(err)
 
     def _replay(self) -> None:
         st = self.state
-        source, stop = st.source, st.stop
+        source, stop, assembler, rig_pub = st.source, st.stop, st.assembler, self._rig_pub
+        assert source is not None and assembler is not None and rig_pub is not None  # (log)
         # the writer's own matched readers, not the graph's count: a reader the graph knows
         # may not be matched by the writer yet, and what is sent before is lost to it
-        while self._rig_pub.get_subscription_count() < self._cfg["input.wait_for_subscribers"]:
+        while rig_pub.get_subscription_count() < self._cfg["input.wait_for_subscribers"]:
             if stop.wait(0.05):
                 return
         try:
-            for sample in source.samples(st.assembler, 1.0 / self._cfg["bridge.rate"], stop):
+            for sample in source.samples(assembler, 1.0 / self._cfg["bridge.rate"], stop):
                 if st.offset is None and source.first_time is not None:
                     st.offset = time.time() - source.first_time
                 self._publish(sample)
@@ -343,8 +352,10 @@ class CanBridgeNode(LifecycleNode):
         Runs on the Notifier thread (frames) and the executor (timer), hence the lock.
         """
         st = self.state
+        assembler, pacer = st.assembler, st.pacer
+        assert assembler is not None and pacer is not None  # configured
         with self._lock:
-            newest = st.assembler.newest_time
+            newest = assembler.newest_time
             now = newest if bus_time and newest is not None else \
                 time.time() - (st.offset or 0.0)
             if not decide(*args, now):
@@ -352,10 +363,11 @@ class CanBridgeNode(LifecycleNode):
             if newest is not None and st.offset is None:  # relative clocks -> the epoch
                 skew = time.time() - newest
                 st.offset = skew if abs(skew) > 3600.0 else 0.0
-            if newest is None or not self._publish(st.assembler.snapshot()):
-                st.pacer.refund()
+            if newest is None or not self._publish(assembler.snapshot()):
+                pacer.refund()
                 return
-            st.lag_max = max(st.lag_max, time.time() - st.offset - newest)
+            # (st.offset was set above when it was None)
+            st.lag_max = max(st.lag_max, time.time() - (st.offset or 0.0) - newest)
 
     def _publish(self, sample) -> bool:
         st = self.state
@@ -364,6 +376,7 @@ class CanBridgeNode(LifecycleNode):
         st.last_stamp, st.last_new = sample.stamp, time.monotonic()
         st.stale_groups = sample.stale
         st.stale_samples += bool(sample.stale_mask)
+        assert self._rig_pub is not None  # active, so configured
         self._rig_pub.publish(rig_state_to_ros(sample, st.offset or 0.0))
         st.published += 1
         return True
@@ -371,16 +384,18 @@ class CanBridgeNode(LifecycleNode):
     # -- send -----------------------------------------------------------------------------
     def _on_command(self, msg, info) -> None:
         st = self.state
+        gate = st.gate
+        assert gate is not None  # the subscription is made by configure, after the gate
         st.sources.count_sequence(info)
-        refusal = ("inactive", "command refused: can_bridge is not active") \
+        kind, reason = ("inactive", "command refused: can_bridge is not active") \
             if not st.active else ("source", st.sources.check(info))
-        if refusal[1] is not None:
-            st.gate.refuse(*refusal)
+        if reason is not None:
+            gate.refuse(kind, reason)
             return
         stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        admitted = st.gate.commands
-        out = st.gate.submit(msg.pressure, stamp if stamp > 0.0 else None)
-        self._send(out, msg if st.gate.commands != admitted else None)
+        admitted = gate.commands
+        out = gate.submit(msg.pressure, stamp if stamp > 0.0 else None)
+        self._send(out, msg if gate.commands != admitted else None)
 
     def _send(self, out, command=None, timeout: float = SEND_TIMEOUT) -> None:
         """Send the gate's frame (if any); report it on pump_request when new or changed.
@@ -392,6 +407,7 @@ class CanBridgeNode(LifecycleNode):
         if out is None:
             return
         st = self.state
+        assert st.bus is not None and self._cmd_pub is not None  # a frame: the bus is open
         try:
             st.bus.send(out.frame, timeout=timeout)
         except CanError as err:  # link down: the pump's own timeout takes it to 0 bar

@@ -25,6 +25,7 @@ kept there too (``reported``), so they start again at configure and go with the 
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from clutch_ros.nodes.can_bridge_state import BridgeState
 from clutch_ros.nodes.controller_params import RIG_TIMEOUT
@@ -54,7 +55,8 @@ LAG_WARN = RIG_TIMEOUT
 MAX_VALUES = 200
 
 
-def bridge_status(state: BridgeState, extra: dict):
+def bridge_status(state: BridgeState,
+                  extra: dict[str, Any]) -> tuple[str, str, dict[str, Any]]:
     """Return ``(level, message, values)`` for the bridge's /diagnostics status.
 
     ``state``: a configured bridge's state (assembler, gate, bus, pacer; its ``reported``
@@ -63,6 +65,7 @@ def bridge_status(state: BridgeState, extra: dict):
     ``foreign_pump_requests`` (PumpRequest data frames received).
     """
     assembler, bus, gate, prev = state.assembler, state.bus, state.gate, state.reported
+    assert assembler is not None and gate is not None and state.pacer is not None  # configured
     rig_keys = state.pacer.fallback  # frame keys of the rig's signal groups
     c = assembler.counters()
     total_rate, per_id = assembler.rates(time.monotonic())
