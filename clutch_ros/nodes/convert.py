@@ -7,34 +7,46 @@ from array import array
 import numpy as np
 from clutch_msgs.msg import CanFrame, RigState
 
+from clutch_ros.interfaces import ESTIMATE_FIELDS
 from clutch_ros.nodes.stamps import sec_to_stamp
 from clutch_ros.rigstate import fill_msg
 
 __all__ = ["EstimateMessage", "can_frame_to_ros", "rig_state_to_ros"]
 
 
+#: (message field, source attribute) per kind, from the one ClutchEstimate field table
+_FIELDS = {kind: tuple((f.name, f.attr) for f in ESTIMATE_FIELDS
+                       if f.source == "estimate" and f.kind == kind)
+           for kind in ("float64", "float64[]", "bool", "string")}
+_ADAPTATION = tuple((f.name, f.kind, f.attr, f.state) for f in ESTIMATE_FIELDS
+                    if f.source == "adaptation")
+
+
 class EstimateMessage:
     """One preallocated ``clutch_msgs/ClutchEstimate``, refilled for every published estimate.
 
-    Building a ClutchEstimate per sample cost more than publishing it (the constructor
-    alone about 40 µs, the per-lamella lists another 13 µs); this keeps one message and
-    copies the model's per-lamella arrays [N] into numpy views of the message's own
-    ``array('d')`` buffers. Safe because rclpy's ``publish`` serialises the message before
-    it returns: refill it only after the previous ``publish`` call returned (one thread).
+    The fields and where each comes from are :data:`clutch_ros.interfaces.ESTIMATE_FIELDS`
+    (the table ``clutch replay -o`` writes from too). Building a ClutchEstimate per sample
+    cost more than publishing it (the constructor alone about 40 µs, the per-lamella lists
+    another 13 µs); this keeps one message and copies the model's per-lamella arrays [N]
+    into numpy views of the message's own ``array('d')`` buffers. Safe because rclpy's
+    ``publish`` serialises the message before it returns: refill it only after the previous
+    ``publish`` call returned (one thread).
     """
 
     def __init__(self, msg_type):
         """Preallocate one ``msg_type`` (``ClutchEstimate``) message."""
         self.msg = msg_type()
-        self._normal = self._spline = None  # numpy views on the message arrays [N]
+        self._views: dict[str, np.ndarray] = {}  # numpy views on the message arrays [N]
+        self._lamellas = -1
 
     def _resize(self, n: int) -> None:
         """Give the message float64 arrays of ``n`` lamellas (at start, or a new count)."""
-        msg = self.msg
-        msg.lamella_normal_force = array("d", bytes(8 * n))
-        msg.spline_friction_force = array("d", bytes(8 * n))
-        self._normal = np.frombuffer(msg.lamella_normal_force, dtype=np.float64)
-        self._spline = np.frombuffer(msg.spline_friction_force, dtype=np.float64)
+        for name, _ in _FIELDS["float64[]"]:
+            buffer = array("d", bytes(8 * n))
+            setattr(self.msg, name, buffer)
+            self._views[name] = np.frombuffer(buffer, dtype=np.float64)
+        self._lamellas = n
 
     def fill(self, est, status, header):
         """Fill the message from a model ``Estimate`` and ``AdaptationStatus``; return it.
@@ -43,33 +55,24 @@ class EstimateMessage:
         stamp of the sample it was computed from.
         """
         msg = self.msg
-        normal, spline = est.lamella_normal_force, est.spline_friction_force
-        if self._normal is None or len(normal) != len(self._normal):
-            self._resize(len(normal))
-        self._normal[:] = normal
-        self._spline[:] = spline
+        n = len(est.lamella_normal_force)
+        if n != self._lamellas:
+            self._resize(n)
+        views = self._views
+        for name, attr in _FIELDS["float64[]"]:
+            views[name][:] = getattr(est, attr)
         msg.header = header
-        msg.modelled_torque = float(est.modelled_torque)
-        msg.reference_torque = float(est.reference_torque)
-        msg.measured_torque = float(est.measured_torque)
-        msg.torque_accuracy = float(est.torque_accuracy)
-        msg.friction_coefficient = float(est.friction_coefficient)
-        msg.front_pressure = float(est.front_pressure)
-        msg.rear_pressure = float(est.rear_pressure)
-        msg.pressure_difference = float(est.pressure_difference)
-        msg.slip_speed_filtered = float(est.slip_speed_filtered)
-        msg.spline_correction = float(est.spline_correction)
-        msg.actuating_pressure = float(est.actuating_pressure)
-        msg.lamella_temperature = float(est.lamella_temperature)
-        msg.spline_law = est.spline_law
-        msg.overshoot = bool(est.overshoot)
-        msg.undershoot = bool(est.undershoot)
-        msg.friction_scale = float(status.friction_scale)
-        msg.friction_scale_std = float(status.friction_scale_std)
-        msg.spline_gain_scale = float(status.spline_gain_scale)
-        msg.spline_gain_scale_std = float(status.spline_gain_scale_std)
-        msg.adapting = bool(status.adapting)
-        msg.adaptation_frozen = status.state == "frozen"
+        for name, attr in _FIELDS["float64"]:
+            setattr(msg, name, float(getattr(est, attr)))
+        for name, attr in _FIELDS["bool"]:
+            setattr(msg, name, bool(getattr(est, attr)))
+        for name, attr in _FIELDS["string"]:
+            setattr(msg, name, getattr(est, attr))
+        for name, kind, attr, state in _ADAPTATION:
+            value = getattr(status, attr)
+            if state:
+                value = value == state
+            setattr(msg, name, float(value) if kind == "float64" else bool(value))
         return msg
 
 
