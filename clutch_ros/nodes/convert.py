@@ -43,9 +43,9 @@ class EstimateMessage:
     def _resize(self, n: int) -> None:
         """Give the message float64 arrays of ``n`` lamellas (at start, or a new count)."""
         for name, _ in _FIELDS["float64[]"]:
-            buffer = array("d", bytes(8 * n))
-            setattr(self.msg, name, buffer)
-            self._views[name] = np.frombuffer(buffer, dtype=np.float64)
+            setattr(self.msg, name, array("d", bytes(8 * n)))
+            # a view of the array the message holds (its setter may store a copy)
+            self._views[name] = np.frombuffer(getattr(self.msg, name), dtype=np.float64)
         self._lamellas = n
 
     def fill(self, est, status, header):
