@@ -217,7 +217,7 @@ def write_estimates(
     with BagWriter(
         out, storage=storage, compression=compression, delete_on_error=True, custom_data=custom
     ) as writer:
-        topic = writer.add_topic("/clutch_estimate", CLUTCH_ESTIMATE)
+        topic = writer.add_topic(interfaces.CLUTCH_ESTIMATE.absolute, CLUTCH_ESTIMATE)
         return write_columns(writer, topic, serializer, stamps, columns)
 
 
