@@ -247,7 +247,8 @@ def estimate_layout(
         spline_friction_force=np.zeros(n_lamellas),
     )
     columns = {name: getattr(batch, name)[rows] for name in ESTIMATE_FIELDS}
-    columns.update(_adaptation_off(result))
+    columns.update({name: np.full(rows.size, value)
+                    for name, value in _adaptation_off(result).items()})
     stamps = np.asarray(result.rig.stamp_ns, dtype=np.int64)[rows]
     return serializer, rows, stamps, columns
 
@@ -257,7 +258,7 @@ def _adaptation_off(result: ReplayResult) -> dict[str, float | bool]:
 
     The node runs an ``AdaptiveEstimator``; with ``adapt.enabled`` false its status is
     constant (scale 1 and the prior standard deviations, state ``off``), and the model is
-    the replay's own. One value per field, broadcast to every row.
+    the replay's own. One value per field (:func:`estimate_layout` gives it every row).
     """
     if result.params is None:  # not known (an adaptive replay adds its own columns)
         return {}
