@@ -24,6 +24,7 @@ from clutch_ros.bag.errors import BagCorruptError, BagCountMismatchError, BagErr
 from clutch_ros.bag.fastmcap import scan_chunks
 from clutch_ros.bag.reader import BagReader
 from clutch_ros.bag.typestore import RIG_STATE, Typestore, topic_name
+from clutch_ros.interfaces import NS_PER_S, stamp_to_s
 
 __all__ = ["REPLAY_FIELDS", "ColumnSink", "RigStateArrays", "mcap_files", "model_inputs",
            "read_fast", "read_rig_states", "read_via_rosbags"]
@@ -59,7 +60,7 @@ class RigStateArrays:
         self.topic = topic
         self.columns = columns
         sec = columns["header.stamp.sec"].astype(np.int64)
-        self.stamp_ns = sec * 1_000_000_000 + columns["header.stamp.nanosec"].astype(np.int64)
+        self.stamp_ns = sec * NS_PER_S + columns["header.stamp.nanosec"].astype(np.int64)
         self.stamp = self.stamp_ns / 1e9
         self.time = (self.stamp_ns - (self.stamp_ns[0] if len(self.stamp_ns) else 0)) / 1e9
         self.bag_time_ns = bag_ns
@@ -77,13 +78,14 @@ class RigStateArrays:
 def model_inputs(columns: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
     """Return the estimator's inputs from RigState columns: ``(t, p, temp, omega, measured)``.
 
-    ``t``: header stamps [s] as the node computes them (``sec + nanosec * 1e-9``, float64, so
-    both see bit-identical time steps); actuating pressure [Pa]; lamella temperature [°C];
-    slip speed [rad/s]; measured torque [N m], NaN where ``has_measured_torque`` is false.
+    ``t``: header stamps [s] as the node computes them
+    (:func:`clutch_ros.interfaces.stamp_to_s`: ``sec + nanosec * 1e-9`` in float64, so both
+    see bit-identical time steps); actuating pressure [Pa]; lamella temperature [°C]; slip
+    speed [rad/s]; measured torque [N m], NaN where ``has_measured_torque`` is false.
     Element by element, so a block's inputs are the whole stream's rows.
     """
-    t = (columns["header.stamp.sec"].astype(np.float64)
-         + columns["header.stamp.nanosec"].astype(np.float64) * 1e-9)
+    t = stamp_to_s(columns["header.stamp.sec"].astype(np.float64),
+                   columns["header.stamp.nanosec"].astype(np.float64))
     measured = np.where(columns["has_measured_torque"].astype(bool),
                         columns["measured_torque"], np.nan)
     return (t, columns["actuating_pressure"], columns["lamella_temperature"],

@@ -26,6 +26,7 @@ from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from clutch_ros import interfaces
 from clutch_ros.bag.errors import BagError, MessageFieldError, UnknownTypeError
 from clutch_ros.errors import ConfigError
 
@@ -55,11 +56,12 @@ __all__ = [
 ]
 
 PACKAGE = "clutch_msgs"
-RIG_STATE = "clutch_msgs/msg/RigState"
-CLUTCH_ESTIMATE = "clutch_msgs/msg/ClutchEstimate"
-TORQUE_REQUEST = "clutch_msgs/msg/TorqueRequest"
-PRESSURE_COMMAND = "clutch_msgs/msg/PressureCommand"
-CAN_FRAME = "clutch_msgs/msg/CanFrame"
+# the type names of the clutch topics (clutch_ros.interfaces.TOPICS)
+RIG_STATE = interfaces.RIG_STATE.typename
+CLUTCH_ESTIMATE = interfaces.CLUTCH_ESTIMATE.typename
+TORQUE_REQUEST = interfaces.TORQUE_REQUEST.typename
+PRESSURE_COMMAND = interfaces.PRESSURE_COMMAND.typename
+CAN_FRAME = interfaces.CAN_FRAMES.typename
 CLOCK = "rosgraph_msgs/msg/Clock"
 #: The clutch_msgs types the package relies on (more .msg files are registered if present).
 CLUTCH_TYPES = (RIG_STATE, CLUTCH_ESTIMATE, TORQUE_REQUEST, PRESSURE_COMMAND, CAN_FRAME)
@@ -67,7 +69,6 @@ CLUTCH_TYPES = (RIG_STATE, CLUTCH_ESTIMATE, TORQUE_REQUEST, PRESSURE_COMMAND, CA
 #: rosbags store of the ROS 2 distribution closest to Kilted that this rosbags provides.
 BASE_STORE: Stores = getattr(Stores, "ROS2_KILTED", Stores.ROS2_JAZZY)
 
-_NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 
 # numpy dtypes of primitive array elements, as rosbags represents them.
@@ -168,7 +169,7 @@ def msg_class(typename: str, store: Typestore | None = None) -> type:
 
 def stamp_to_ns(stamp: Any) -> int:
     """Convert a ``builtin_interfaces/Time`` (rosbags or rclpy) to integer nanoseconds."""
-    return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
+    return interfaces.stamp_to_ns(stamp.sec, stamp.nanosec)
 
 
 def ns_to_stamp(stamp_ns: int, store: Typestore | None = None) -> Any:
@@ -178,7 +179,7 @@ def ns_to_stamp(stamp_ns: int, store: Typestore | None = None) -> Any:
         MessageFieldError: the time does not fit ``int32`` seconds.
 
     """
-    sec, nanosec = divmod(int(stamp_ns), _NS_PER_S)
+    sec, nanosec = interfaces.ns_to_stamp(stamp_ns)
     if not _INT32_MIN <= sec <= _INT32_MAX:
         raise MessageFieldError(None, f"stamp {stamp_ns} ns does not fit a ROS Time (int32 s)")
     return msg_class("builtin_interfaces/msg/Time", store)(sec=sec, nanosec=nanosec)

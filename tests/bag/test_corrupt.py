@@ -131,12 +131,12 @@ def test_metadata_qos_disagreeing_with_storage(tmp_path, storage):
     path = tmp_path / "qos"
     write_sample_bag(path, storage)
 
-    def reliable(meta):
+    def best_effort(meta):  # the storage says reliable, as the can_bridge offers rig_state
         for topic in meta["topics_with_message_count"]:
             if topic["topic_metadata"]["name"] == "/rig_state":
-                topic["topic_metadata"]["offered_qos_profiles"][0]["reliability"] = "reliable"
+                topic["topic_metadata"]["offered_qos_profiles"][0]["reliability"] = "best_effort"
 
-    _edit_metadata(path, reliable)
+    _edit_metadata(path, best_effort)
     with Reader(path) as raw:
         conns = [c for c in raw.connections if c.topic == "/rig_state"]
         assert conns[0].msgcount == 50 and list(raw.messages(conns)) == []
