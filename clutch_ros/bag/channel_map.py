@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from clutch_ros.bag.errors import BagError
+from clutch_ros.bag.errors import MapError
 from clutch_ros.interfaces import NS_PER_S, SI_UNITS, unit_table
 from clutch_ros.rigstate import FIELDS
 
@@ -44,10 +44,6 @@ UNITS: dict[str, dict[str, tuple[float, float]]] = {
     for quantity in SI_UNITS if quantity
 }
 _SPECS = {f.name: f for f in FIELDS}
-
-
-class MapError(BagError):
-    """A channel map is invalid, or a source lacks a channel the map names."""
 
 
 @dataclass(frozen=True)

@@ -37,15 +37,6 @@ rclpy.spin(DemoDriver(demo_profile(1000.0, quick=True)))
 """
 
 
-def test_node_sources_offer_the_tables_depths():
-    """The can_bridge's depth constants (not editable from the table) agree with it."""
-    from clutch_ros.nodes import can_bridge
-
-    assert interfaces.RIG_STATE.publisher.depth == can_bridge.RIG_STATE_DEPTH
-    assert interfaces.PUMP_REQUEST.publisher.depth == can_bridge.PUMP_REQUEST_DEPTH
-    assert interfaces.CAN_FRAMES.publisher.depth == can_bridge.RAW_DEPTH
-
-
 def _check_discovered(name: str, infos, spec) -> None:
     assert infos, f"no publisher of {name}"
     for info in infos:
