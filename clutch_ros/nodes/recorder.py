@@ -78,7 +78,8 @@ from clutch_ros.nodes.parameters import (
     help_requested,
 )
 from clutch_ros.nodes.qos import spec_of
-from clutch_ros.nodes.runner import make_executor
+from clutch_ros.nodes.realtime import REALTIME_PARAMS
+from clutch_ros.nodes.runner import make_executor, start_realtime
 
 NAME = "recorder"
 RESOLVE_PERIOD = 0.25  # [s] how often topics without a publisher yet are looked up
@@ -392,6 +393,7 @@ def _run(args) -> int:
     try:
         try:
             node = RecorderNode()
+            realtime = start_realtime(node)  # rt.* (nodes/realtime.py), like every node
         except (ClutchError, ValueError, ParameterException) as err:
             sys.stderr.write(f"{NAME}: error: {err}\n")
             return 2
@@ -402,6 +404,7 @@ def _run(args) -> int:
         while not stop["now"]:
             executor.spin_once(timeout_sec=0.1)
         drained = node.drain(executor)
+        del realtime  # its /diagnostics timer lived as long as the spin
         node.get_logger().info(f"shutdown: {drained} queued messages drained")
         node.close()
         executor.shutdown()
@@ -416,7 +419,7 @@ def main(args=None) -> int:
     """Console entry point: ``ros2 run clutch_ros recorder``."""
     argv = list(sys.argv[1:] if args is None else args)
     if help_requested(argv):
-        sys.stdout.write(format_help(NAME, __doc__, PARAMS))
+        sys.stdout.write(format_help(NAME, __doc__, [*PARAMS, *REALTIME_PARAMS]))
         return 0
     return _run(argv)
 
