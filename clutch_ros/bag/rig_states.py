@@ -23,7 +23,7 @@ from clutch_ros.bag.diagnose import blame_file, load_metadata, storage_files, st
 from clutch_ros.bag.errors import BagCorruptError, BagCountMismatchError, BagError
 from clutch_ros.bag.fastmcap import scan_chunks
 from clutch_ros.bag.reader import BagReader
-from clutch_ros.bag.typestore import RIG_STATE, Typestore, topic_name
+from clutch_ros.bag.typestore import RIG_STATE_TYPE, Typestore, topic_name
 from clutch_ros.interfaces import NS_PER_S, stamp_to_s
 
 __all__ = ["REPLAY_FIELDS", "ColumnSink", "RigStateArrays", "mcap_files", "model_inputs",
@@ -225,7 +225,7 @@ def read_via_rosbags(
         nonlocal done
         try:
             if decoder is None:
-                part = columns_slow(bag.store, RIG_STATE, raws)
+                part = columns_slow(bag.store, RIG_STATE_TYPE, raws)
             else:
                 part = decoder.decode(raws)
         except CorruptMessageError as err:
@@ -295,17 +295,17 @@ def read_rig_states(
     """
     with BagReader(path, store=store) as bag:
         if topic is None:
-            found = [t for t, info in bag.topics.items() if info.typename == RIG_STATE]
+            found = [t for t, info in bag.topics.items() if info.typename == RIG_STATE_TYPE]
             if len(found) != 1:
                 raise BagError(
                     bag.path,
-                    f"expected one {RIG_STATE} topic, found {found or 'none'}; choose the "
+                    f"expected one {RIG_STATE_TYPE} topic, found {found or 'none'}; choose the "
                     "topic with --topic TOPIC",
                 )
             topic = found[0]
         topic = topic_name(topic)
         for conn in bag._select(topic):
-            if conn.msgtype != RIG_STATE:
+            if conn.msgtype != RIG_STATE_TYPE:
                 raise BagError(bag.path, f"topic {topic} has type {conn.msgtype}, not RigState")
             bag._check_type(conn)
         if fields is not None:
@@ -314,7 +314,7 @@ def read_rig_states(
             if unknown:
                 raise BagError(bag.path, f"RigState has no field {', '.join(sorted(unknown))}")
         try:
-            decoder: ColumnDecoder | None = ColumnDecoder(bag.store, RIG_STATE, fields)
+            decoder: ColumnDecoder | None = ColumnDecoder(bag.store, RIG_STATE_TYPE, fields)
         except ValueError:
             decoder = None
         files = mcap_files(bag) if fast and decoder is not None else None
@@ -332,4 +332,4 @@ def read_rig_states(
 
 def _field_paths(store: Typestore) -> list[str]:
     """Dotted paths of RigState's primitive, array and sequence fields."""
-    return [step[1] for step in _steps(store, RIG_STATE) if step[0] != "string"]
+    return [step[1] for step in _steps(store, RIG_STATE_TYPE) if step[0] != "string"]

@@ -52,7 +52,7 @@ from clutch_ros import interfaces
 from clutch_ros.bag.errors import BagError, BagExistsError, MessageFieldError, UnknownTypeError
 from clutch_ros.bag.reader import check_bag
 from clutch_ros.bag.typestore import (
-    RIG_STATE,
+    RIG_STATE_TYPE,
     Typestore,
     clutch_typestore,
     rig_state_msg,
@@ -408,7 +408,7 @@ def write_rig_states(
 
     The bag timestamp of each message equals its header stamp. The output is deleted again if
     ``samples`` raises (an import is all or nothing). A CAN-log importer only has to yield
-    samples in SI units with :data:`RIG_STATE` field names.
+    samples in SI units with :data:`RIG_STATE_TYPE` field names.
 
     Args:
         out_bag: bag directory to create.
@@ -432,7 +432,7 @@ def write_rig_states(
         compression=compression,
     )
     with writer:
-        name = writer.add_topic(topic, RIG_STATE)
+        name = writer.add_topic(topic, RIG_STATE_TYPE)
         count = 0
         for stamp_ns, fields in samples:
             writer.write(name, stamp_ns, rig_state_msg(stamp_ns, frame_id=frame_id, **fields))

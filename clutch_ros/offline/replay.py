@@ -37,7 +37,7 @@ from clutch_ros.bag.rig_states import (
     model_inputs,
     read_rig_states,
 )
-from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, Typestore
+from clutch_ros.bag.typestore import CLUTCH_ESTIMATE_TYPE, Typestore
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.model import accuracy_summary, estimate_batch
 from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimator
@@ -217,7 +217,7 @@ def write_estimates(
     with BagWriter(
         out, storage=storage, compression=compression, delete_on_error=True, custom_data=custom
     ) as writer:
-        topic = writer.add_topic(interfaces.CLUTCH_ESTIMATE.absolute, CLUTCH_ESTIMATE)
+        topic = writer.add_topic(interfaces.CLUTCH_ESTIMATE.absolute, CLUTCH_ESTIMATE_TYPE)
         return write_columns(writer, topic, serializer, stamps, columns)
 
 
@@ -240,7 +240,7 @@ def estimate_layout(
     rows = np.flatnonzero(published_rows(batch))
     n_lamellas = batch.lamella_normal_force.shape[1]
     serializer = TemplateSerializer(
-        CLUTCH_ESTIMATE,
+        CLUTCH_ESTIMATE_TYPE,
         frame_id=_first_frame_id(result),
         spline_law=batch.spline_law,
         lamella_normal_force=np.zeros(n_lamellas),

@@ -10,7 +10,7 @@ from mcap_ros2.decoder import DecoderFactory
 
 from clutch_ros.bag.errors import BagError, BagExistsError, BagNotFoundError, UnknownTypeError
 from clutch_ros.bag.reader import check_bag, open_bag
-from clutch_ros.bag.typestore import RIG_STATE, rig_state_msg, stamp_to_ns, topic_name
+from clutch_ros.bag.typestore import RIG_STATE_TYPE, rig_state_msg, stamp_to_ns, topic_name
 from clutch_ros.bag.writer import BagWriter, write_rig_states
 from clutch_ros.errors import ConfigError
 
@@ -194,7 +194,7 @@ def test_namespaced_topic_keeps_default_type_and_qos(tmp_path):
         writer.write(name, 5, rig_state_msg(5))
     with open_bag(path) as bag:
         (info,) = bag.topics.values()
-    assert info.topic == "/rig1/rig_state" and info.typename == RIG_STATE
+    assert info.topic == "/rig1/rig_state" and info.typename == RIG_STATE_TYPE
     assert info.qos[0].reliability.name == "RELIABLE" and info.qos[0].depth == 50
 
 
