@@ -34,10 +34,11 @@ from pathlib import Path
 import numpy as np
 from rosbags.rosbag2 import Reader
 
+from clutch_ros import interfaces
 from clutch_ros.bag.columns import ColumnDecoder
 from clutch_ros.bag.reader import BagReader
 from clutch_ros.bag.rig_states import REPLAY_FIELDS, read_rig_states
-from clutch_ros.bag.typestore import RIG_STATE, clutch_typestore, rig_state_msg
+from clutch_ros.bag.typestore import RIG_STATE_TYPE, clutch_typestore, rig_state_msg
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
@@ -126,13 +127,13 @@ def generate_bag(
         wheel_speeds=np.zeros(4),
         has_measured_torque=True,
     )
-    raw = np.frombuffer(bytes(store.serialize_cdr(template, RIG_STATE)), dtype=np.uint8)
-    offsets = ColumnDecoder(store, RIG_STATE).offsets(raw.tobytes())
+    raw = np.frombuffer(bytes(store.serialize_cdr(template, RIG_STATE_TYPE)), dtype=np.uint8)
+    offsets = ColumnDecoder(store, RIG_STATE_TYPE).offsets(raw.tobytes())
     size = len(raw)
     total = int(round(seconds * rate_hz))
     period_ns = 1e9 / rate_hz
     with BagWriter(path, storage=storage, delete_on_error=True) as writer:
-        topic = writer.add_topic("/rig_state")
+        topic = writer.add_topic(interfaces.RIG_STATE.absolute)
         for first in range(0, total, _BLOCK):
             n = min(_BLOCK, total - first)
             idx = np.arange(first, first + n)

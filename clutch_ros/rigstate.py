@@ -6,7 +6,8 @@ columns (``bag``), imported from CSV columns (``bag.csv_import``) and MDF4 chann
 module is the one table that says which fields exist, in which SI unit (REP 103; temperatures
 in °C), which CSV column stem and which signal of ``params/rig.dbc`` feed each, and the
 conversions between the SI :class:`RigSample` and a message object. It imports nothing but
-the standard library, so every layer may use it (see ARCHITECTURE.md).
+the standard library and :mod:`clutch_ros.interfaces` (stamps), so every layer may use it
+(see ARCHITECTURE.md).
 
 Field kinds:
     scalar  one float per sample (NaN when never received)
@@ -20,6 +21,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
+
+from clutch_ros.interfaces import s_to_stamp, stamp_to_s
 
 __all__ = [
     "ARRAYS",
@@ -161,8 +164,7 @@ def fill_msg(msg: Any, sample: Any, stamp_s: float, frame_id: str = "clutch") ->
     The header stamp is ``stamp_s`` [s] split into ``sec``/``nanosec`` (rounded to the
     nearest ns; NaN or negative stamps give 0, which a ROS time cannot be below).
     """
-    total = round(stamp_s * 1e9) if math.isfinite(stamp_s) and stamp_s > 0.0 else 0
-    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(total), 1_000_000_000)
+    msg.header.stamp.sec, msg.header.stamp.nanosec = s_to_stamp(stamp_s)
     msg.header.frame_id = frame_id
     for name, value in msg_fields(sample).items():
         setattr(msg, name, value)
@@ -174,7 +176,7 @@ def sample_from_msg(msg: Any) -> RigSample:
 
     ``stamp`` is the header stamp [s].
     """
-    sample = RigSample(stamp=msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+    sample = RigSample(stamp=stamp_to_s(msg.header.stamp.sec, msg.header.stamp.nanosec))
     for spec in FIELDS:
         value = getattr(msg, spec.name)
         if spec.kind == "scalar":

@@ -27,10 +27,10 @@ from clutch_ros.bag.errors import BagCorruptError, BagError, MessageFieldError
 from clutch_ros.bag.reader import BagReader
 from clutch_ros.bag.typestore import Typestore, clutch_typestore, make_msg, topic_name
 from clutch_ros.bag.writer import BagWriter
+from clutch_ros.interfaces import NS_PER_S
 
 __all__ = ["TemplateSerializer", "read_columns", "write_columns"]
 
-_NS_PER_S = 1_000_000_000
 _BLOCK = 65536
 
 
@@ -118,8 +118,8 @@ class TemplateSerializer:
         """Like :meth:`serialize` with ``header.stamp`` set from ``stamps_ns`` [ns]."""
         stamps = np.asarray(stamps_ns, dtype=np.int64)
         cols = dict(columns)
-        cols["header.stamp.sec"] = stamps // _NS_PER_S
-        cols["header.stamp.nanosec"] = stamps % _NS_PER_S
+        cols["header.stamp.sec"] = stamps // NS_PER_S
+        cols["header.stamp.nanosec"] = stamps % NS_PER_S
         return self.serialize(len(stamps), cols)
 
 
@@ -204,7 +204,7 @@ def read_columns(
             first = bag.store.deserialize_cdr(raws[0], typename)
             strings = _strings(bag.store, typename, first)
     if "header.stamp.sec" in cols:
-        cols["stamp_ns"] = cols["header.stamp.sec"].astype(np.int64) * _NS_PER_S + cols[
+        cols["stamp_ns"] = cols["header.stamp.sec"].astype(np.int64) * NS_PER_S + cols[
             "header.stamp.nanosec"
         ].astype(np.int64)
     return cols, np.array(times, dtype=np.int64), strings

@@ -12,8 +12,9 @@ A map is a YAML file; field names and their SI units come from :mod:`clutch_ros.
       ff_voltages: {channels: [FF1, FF2, FF3, FF4, FF5, FF6, FF7, FF8], unit: V}
 
 ``actuating_pressure``, ``lamella_temperature`` and ``slip_speed`` are required (as for the
-CSV import). Units are converted to SI by the field's quantity (:data:`UNITS`): bar, kPa,
-MPa, psi -> Pa; rpm -> rad/s; degC, K -> °C; N m, kN m -> N m; mV -> V; mA -> A; ms -> s. A
+CSV import). Units are converted to SI by the field's quantity (:data:`UNITS`, from
+:data:`clutch_ros.interfaces.UNITS`): bar, kPa, MPa, psi -> Pa; rpm -> rad/s; degC, K -> °C;
+N m, kN m -> N m; mV -> V; mA -> A; ms, us, ns -> s. A
 channel whose own unit (MDF4 stores one) disagrees with the map is an error, never a silent
 rescale. ``has_measured_torque`` is true where the measured torque is finite.
 """
@@ -29,30 +30,20 @@ from typing import Any
 import numpy as np
 import yaml
 
-from clutch_ros.bag.errors import BagError
+from clutch_ros.bag.errors import MapError
+from clutch_ros.interfaces import NS_PER_S, SI_UNITS, unit_table
 from clutch_ros.rigstate import FIELDS
 
 __all__ = ["ChannelMap", "MapError", "REQUIRED_FIELDS", "UNITS", "load_map", "samples"]
 
 REQUIRED_FIELDS = ("actuating_pressure", "lamella_temperature", "slip_speed")
-_RPM = 2.0 * math.pi / 60.0
-#: quantity -> unit spelling -> (scale, offset): SI = value * scale + offset
+#: quantity -> unit spelling -> (scale, offset): SI = value * scale + offset, from the one
+#: unit table :data:`clutch_ros.interfaces.UNITS`
 UNITS: dict[str, dict[str, tuple[float, float]]] = {
-    "pressure": {"Pa": (1.0, 0.0), "kPa": (1e3, 0.0), "bar": (1e5, 0.0), "mbar": (100.0, 0.0),
-                 "MPa": (1e6, 0.0), "psi": (6894.757293168361, 0.0)},
-    "temperature": {"degC": (1.0, 0.0), "°C": (1.0, 0.0), "C": (1.0, 0.0),
-                    "K": (1.0, -273.15)},
-    "speed": {"rad/s": (1.0, 0.0), "rpm": (_RPM, 0.0), "1/min": (_RPM, 0.0)},
-    "torque": {"N m": (1.0, 0.0), "Nm": (1.0, 0.0), "N*m": (1.0, 0.0), "kN m": (1e3, 0.0)},
-    "voltage": {"V": (1.0, 0.0), "mV": (1e-3, 0.0)},
-    "current": {"A": (1.0, 0.0), "mA": (1e-3, 0.0)},
-    "time": {"s": (1.0, 0.0), "ms": (1e-3, 0.0), "us": (1e-6, 0.0)},
+    quantity: {spelling: (u.scale, u.offset) for spelling, u in unit_table(quantity).items()}
+    for quantity in SI_UNITS if quantity
 }
 _SPECS = {f.name: f for f in FIELDS}
-
-
-class MapError(BagError):
-    """A channel map is invalid, or a source lacks a channel the map names."""
 
 
 @dataclass(frozen=True)
@@ -146,7 +137,7 @@ def samples(cmap: ChannelMap, t_s: np.ndarray, columns: Mapping[str, np.ndarray]
         arrays = [np.asarray(columns[c], dtype=float) * src.scale + src.offset
                   for c in src.channels]
         si[src.field] = arrays
-    stamps = np.round(t_s * 1e9).astype(np.int64) + int(offset_ns)
+    stamps = np.round(t_s * NS_PER_S).astype(np.int64) + int(offset_ns)
     for i, stamp in enumerate(stamps):
         fields: dict[str, Any] = {}
         for src in cmap.fields:

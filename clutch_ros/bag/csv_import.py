@@ -42,24 +42,19 @@ from typing import Any, BinaryIO
 from clutch_ros.bag.errors import BagExistsError, CsvError
 from clutch_ros.bag.typestore import topic_name
 from clutch_ros.bag.writer import write_rig_states
+from clutch_ros.interfaces import NS_PER_S, RIG_STATE, SI_UNITS, ns_to_s, unit_table
 from clutch_ros.rigstate import CSV_UNITS, FIELDS
 
 __all__ = ["REQUIRED", "UNITS", "ImportSummary", "import_csv"]
 
-_RPM = 2.0 * math.pi / 60.0
-#: Accepted unit suffixes per quantity: (scale, offset) so that SI = value * scale + offset.
+#: Accepted unit suffixes per quantity: (scale, offset) so that SI = value * scale + offset
+#: (time to ns): the unit table :data:`clutch_ros.interfaces.UNITS` in its CSV spelling
+#: (:func:`~clutch_ros.interfaces.fold_unit`: ``pressure_kpa``, ``diff_speed_rad_s``).
 UNITS: dict[str, dict[str, tuple[float, float]]] = {
-    "time": {"s": (1e9, 0.0), "ms": (1e6, 0.0), "us": (1e3, 0.0), "ns": (1.0, 0.0)},  # -> ns
-    "pressure": {
-        "bar": (1e5, 0.0), "mbar": (1e2, 0.0), "pa": (1.0, 0.0), "kpa": (1e3, 0.0),
-        "mpa": (1e6, 0.0), "psi": (6894.757293168361, 0.0),
-    },
-    "temperature": {"c": (1.0, 0.0), "degc": (1.0, 0.0), "k": (1.0, -273.15)},  # -> degC
-    "speed": {"rpm": (_RPM, 0.0), "rad_s": (1.0, 0.0), "rads": (1.0, 0.0)},
-    "torque": {"nm": (1.0, 0.0), "knm": (1e3, 0.0)},
-    "voltage": {"v": (1.0, 0.0), "mv": (1e-3, 0.0)},
-    "current": {"a": (1.0, 0.0), "ma": (1e-3, 0.0)},
-}  # fmt: skip
+    quantity: {spelling: (u.scale * (NS_PER_S if quantity == "time" else 1.0), u.offset)
+               for spelling, u in unit_table(quantity, fold=True).items()}
+    for quantity in SI_UNITS if quantity
+}
 
 # column stem -> (RigState field or "time", quantity, canonical contract name), from the one
 # RigState field table (clutch_ros.rigstate)
@@ -110,7 +105,7 @@ class ImportSummary:
     @property
     def duration_s(self) -> float:
         """Time covered by the import [s]."""
-        return (self.end_ns - self.start_ns) / 1e9
+        return ns_to_s(self.end_ns - self.start_ns)
 
 
 def _match(name: str) -> tuple[str, tuple[float, float]] | None:
@@ -238,7 +233,7 @@ class _Parser:
         if stamp_ns < 0:
             raise CsvError(
                 self.path,
-                f"time {(stamp_ns - self.offset) / 1e9:.9g} s gives a stamp before 1970; "
+                f"time {ns_to_s(stamp_ns - self.offset):.9g} s gives a stamp before 1970; "
                 "import with a time offset",
                 line=line,
                 column=column,
@@ -246,8 +241,8 @@ class _Parser:
         if self.prev_ns is not None and stamp_ns <= self.prev_ns:
             raise CsvError(
                 self.path,
-                f"time does not increase ({(stamp_ns - self.offset) / 1e9:.9g} s after "
-                f"{(self.prev_ns - self.offset) / 1e9:.9g} s)",
+                f"time does not increase ({ns_to_s(stamp_ns - self.offset):.9g} s after "
+                f"{ns_to_s(self.prev_ns - self.offset):.9g} s)",
                 line=line,
                 column=column,
             )
@@ -275,7 +270,7 @@ def import_csv(
     storage: str = "mcap",
     progress: Callable[[float], None] | None = None,
     *,
-    topic: str = "/rig_state",
+    topic: str = RIG_STATE.absolute,
     frame_id: str = "rig",
     time_offset_ns: int = 0,
 ) -> ImportSummary:

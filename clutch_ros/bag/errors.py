@@ -43,6 +43,7 @@ __all__ = [
     "CorruptMessageError",
     "CsvError",
     "FastMcapError",
+    "MapError",
     "MessageFieldError",
     "UnknownTypeError",
 ]
@@ -165,3 +166,7 @@ class _DamagedError(BagCorruptError, ValueError):
 
     def __init__(self, cause: str):
         super().__init__(None, cause)
+
+
+class MapError(BagError):
+    """A channel map is invalid, or a source lacks a channel the map names."""

@@ -23,7 +23,8 @@ from clutch_ros.bag.diagnose import blame_file, load_metadata, storage_files, st
 from clutch_ros.bag.errors import BagCorruptError, BagCountMismatchError, BagError
 from clutch_ros.bag.fastmcap import scan_chunks
 from clutch_ros.bag.reader import BagReader
-from clutch_ros.bag.typestore import RIG_STATE, Typestore, topic_name
+from clutch_ros.bag.typestore import RIG_STATE_TYPE, Typestore, topic_name
+from clutch_ros.interfaces import NS_PER_S, stamp_to_s
 
 __all__ = ["REPLAY_FIELDS", "ColumnSink", "RigStateArrays", "mcap_files", "model_inputs",
            "read_fast", "read_rig_states", "read_via_rosbags"]
@@ -59,7 +60,7 @@ class RigStateArrays:
         self.topic = topic
         self.columns = columns
         sec = columns["header.stamp.sec"].astype(np.int64)
-        self.stamp_ns = sec * 1_000_000_000 + columns["header.stamp.nanosec"].astype(np.int64)
+        self.stamp_ns = sec * NS_PER_S + columns["header.stamp.nanosec"].astype(np.int64)
         self.stamp = self.stamp_ns / 1e9
         self.time = (self.stamp_ns - (self.stamp_ns[0] if len(self.stamp_ns) else 0)) / 1e9
         self.bag_time_ns = bag_ns
@@ -77,13 +78,14 @@ class RigStateArrays:
 def model_inputs(columns: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
     """Return the estimator's inputs from RigState columns: ``(t, p, temp, omega, measured)``.
 
-    ``t``: header stamps [s] as the node computes them (``sec + nanosec * 1e-9``, float64, so
-    both see bit-identical time steps); actuating pressure [Pa]; lamella temperature [°C];
-    slip speed [rad/s]; measured torque [N m], NaN where ``has_measured_torque`` is false.
+    ``t``: header stamps [s] as the node computes them
+    (:func:`clutch_ros.interfaces.stamp_to_s`: ``sec + nanosec * 1e-9`` in float64, so both
+    see bit-identical time steps); actuating pressure [Pa]; lamella temperature [°C]; slip
+    speed [rad/s]; measured torque [N m], NaN where ``has_measured_torque`` is false.
     Element by element, so a block's inputs are the whole stream's rows.
     """
-    t = (columns["header.stamp.sec"].astype(np.float64)
-         + columns["header.stamp.nanosec"].astype(np.float64) * 1e-9)
+    t = stamp_to_s(columns["header.stamp.sec"].astype(np.float64),
+                   columns["header.stamp.nanosec"].astype(np.float64))
     measured = np.where(columns["has_measured_torque"].astype(bool),
                         columns["measured_torque"], np.nan)
     return (t, columns["actuating_pressure"], columns["lamella_temperature"],
@@ -223,7 +225,7 @@ def read_via_rosbags(
         nonlocal done
         try:
             if decoder is None:
-                part = columns_slow(bag.store, RIG_STATE, raws)
+                part = columns_slow(bag.store, RIG_STATE_TYPE, raws)
             else:
                 part = decoder.decode(raws)
         except CorruptMessageError as err:
@@ -293,17 +295,17 @@ def read_rig_states(
     """
     with BagReader(path, store=store) as bag:
         if topic is None:
-            found = [t for t, info in bag.topics.items() if info.typename == RIG_STATE]
+            found = [t for t, info in bag.topics.items() if info.typename == RIG_STATE_TYPE]
             if len(found) != 1:
                 raise BagError(
                     bag.path,
-                    f"expected one {RIG_STATE} topic, found {found or 'none'}; choose the "
+                    f"expected one {RIG_STATE_TYPE} topic, found {found or 'none'}; choose the "
                     "topic with --topic TOPIC",
                 )
             topic = found[0]
         topic = topic_name(topic)
         for conn in bag._select(topic):
-            if conn.msgtype != RIG_STATE:
+            if conn.msgtype != RIG_STATE_TYPE:
                 raise BagError(bag.path, f"topic {topic} has type {conn.msgtype}, not RigState")
             bag._check_type(conn)
         if fields is not None:
@@ -312,7 +314,7 @@ def read_rig_states(
             if unknown:
                 raise BagError(bag.path, f"RigState has no field {', '.join(sorted(unknown))}")
         try:
-            decoder: ColumnDecoder | None = ColumnDecoder(bag.store, RIG_STATE, fields)
+            decoder: ColumnDecoder | None = ColumnDecoder(bag.store, RIG_STATE_TYPE, fields)
         except ValueError:
             decoder = None
         files = mcap_files(bag) if fast and decoder is not None else None
@@ -330,4 +332,4 @@ def read_rig_states(
 
 def _field_paths(store: Typestore) -> list[str]:
     """Dotted paths of RigState's primitive, array and sequence fields."""
-    return [step[1] for step in _steps(store, RIG_STATE) if step[0] != "string"]
+    return [step[1] for step in _steps(store, RIG_STATE_TYPE) if step[0] != "string"]

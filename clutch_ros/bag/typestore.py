@@ -26,19 +26,20 @@ from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from clutch_ros import interfaces
 from clutch_ros.bag.errors import BagError, MessageFieldError, UnknownTypeError
 from clutch_ros.errors import ConfigError
 
 __all__ = [
     "topic_name",
     "BASE_STORE",
-    "CAN_FRAME",
-    "CLOCK",
-    "CLUTCH_ESTIMATE",
+    "CAN_FRAME_TYPE",
+    "CLOCK_TYPE",
+    "CLUTCH_ESTIMATE_TYPE",
     "CLUTCH_TYPES",
-    "PRESSURE_COMMAND",
-    "RIG_STATE",
-    "TORQUE_REQUEST",
+    "PRESSURE_COMMAND_TYPE",
+    "RIG_STATE_TYPE",
+    "TORQUE_REQUEST_TYPE",
     "Typestore",
     "can_frame_msg",
     "clutch_estimate_msg",
@@ -55,19 +56,21 @@ __all__ = [
 ]
 
 PACKAGE = "clutch_msgs"
-RIG_STATE = "clutch_msgs/msg/RigState"
-CLUTCH_ESTIMATE = "clutch_msgs/msg/ClutchEstimate"
-TORQUE_REQUEST = "clutch_msgs/msg/TorqueRequest"
-PRESSURE_COMMAND = "clutch_msgs/msg/PressureCommand"
-CAN_FRAME = "clutch_msgs/msg/CanFrame"
-CLOCK = "rosgraph_msgs/msg/Clock"
+# the type names of the clutch topics (clutch_ros.interfaces.TOPICS), called *_TYPE so they
+# are never mistaken for the interfaces' Topic records of the same topics
+RIG_STATE_TYPE = interfaces.RIG_STATE.typename
+CLUTCH_ESTIMATE_TYPE = interfaces.CLUTCH_ESTIMATE.typename
+TORQUE_REQUEST_TYPE = interfaces.TORQUE_REQUEST.typename
+PRESSURE_COMMAND_TYPE = interfaces.PRESSURE_COMMAND.typename
+CAN_FRAME_TYPE = interfaces.CAN_FRAMES.typename
+CLOCK_TYPE = "rosgraph_msgs/msg/Clock"
 #: The clutch_msgs types the package relies on (more .msg files are registered if present).
-CLUTCH_TYPES = (RIG_STATE, CLUTCH_ESTIMATE, TORQUE_REQUEST, PRESSURE_COMMAND, CAN_FRAME)
+CLUTCH_TYPES = (RIG_STATE_TYPE, CLUTCH_ESTIMATE_TYPE, TORQUE_REQUEST_TYPE, PRESSURE_COMMAND_TYPE,
+                CAN_FRAME_TYPE)
 
 #: rosbags store of the ROS 2 distribution closest to Kilted that this rosbags provides.
 BASE_STORE: Stores = getattr(Stores, "ROS2_KILTED", Stores.ROS2_JAZZY)
 
-_NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
 
 # numpy dtypes of primitive array elements, as rosbags represents them.
@@ -168,7 +171,7 @@ def msg_class(typename: str, store: Typestore | None = None) -> type:
 
 def stamp_to_ns(stamp: Any) -> int:
     """Convert a ``builtin_interfaces/Time`` (rosbags or rclpy) to integer nanoseconds."""
-    return int(stamp.sec) * _NS_PER_S + int(stamp.nanosec)
+    return interfaces.stamp_to_ns(stamp.sec, stamp.nanosec)
 
 
 def ns_to_stamp(stamp_ns: int, store: Typestore | None = None) -> Any:
@@ -178,7 +181,7 @@ def ns_to_stamp(stamp_ns: int, store: Typestore | None = None) -> Any:
         MessageFieldError: the time does not fit ``int32`` seconds.
 
     """
-    sec, nanosec = divmod(int(stamp_ns), _NS_PER_S)
+    sec, nanosec = interfaces.ns_to_stamp(stamp_ns)
     if not _INT32_MIN <= sec <= _INT32_MAX:
         raise MessageFieldError(None, f"stamp {stamp_ns} ns does not fit a ROS Time (int32 s)")
     return msg_class("builtin_interfaces/msg/Time", store)(sec=sec, nanosec=nanosec)
@@ -304,22 +307,22 @@ def rig_state_msg(stamp_ns: int, *, frame_id: str = "", **fields: Any) -> Any:
 
     ``ff_voltages`` [V] and ``wheel_speeds`` [rad/s] accept any sequence.
     """
-    return make_msg(RIG_STATE, stamp_ns, frame_id=frame_id, **fields)
+    return make_msg(RIG_STATE_TYPE, stamp_ns, frame_id=frame_id, **fields)
 
 
 def clutch_estimate_msg(stamp_ns: int, *, frame_id: str = "", **fields: Any) -> Any:
     """Build a ``ClutchEstimate``: torques [N m], forces [N], pressures [Pa], speed [rad/s]."""
-    return make_msg(CLUTCH_ESTIMATE, stamp_ns, frame_id=frame_id, **fields)
+    return make_msg(CLUTCH_ESTIMATE_TYPE, stamp_ns, frame_id=frame_id, **fields)
 
 
 def torque_request_msg(stamp_ns: int, torque: float, *, frame_id: str = "") -> Any:
     """Build a ``TorqueRequest`` for ``torque`` [N m]."""
-    return make_msg(TORQUE_REQUEST, stamp_ns, frame_id=frame_id, torque=torque)
+    return make_msg(TORQUE_REQUEST_TYPE, stamp_ns, frame_id=frame_id, torque=torque)
 
 
 def pressure_command_msg(stamp_ns: int, *, frame_id: str = "", **fields: Any) -> Any:
     """Build a ``PressureCommand``: ``pressure`` [Pa], torques [N m], ``limited``, ``reason``."""
-    return make_msg(PRESSURE_COMMAND, stamp_ns, frame_id=frame_id, **fields)
+    return make_msg(PRESSURE_COMMAND_TYPE, stamp_ns, frame_id=frame_id, **fields)
 
 
 def can_frame_msg(
@@ -327,7 +330,7 @@ def can_frame_msg(
 ) -> Any:
     """Build a ``CanFrame``; ``data`` (<= 8 bytes) is zero padded, ``dlc`` defaults to len."""
     fields.setdefault("dlc", len(data))
-    return make_msg(CAN_FRAME, stamp_ns, frame_id=frame_id, id=can_id, data=data, **fields)
+    return make_msg(CAN_FRAME_TYPE, stamp_ns, frame_id=frame_id, id=can_id, data=data, **fields)
 
 def topic_name(name: str, namespace: str = "/") -> str:
     """Return the absolute topic name rosbag2 stores: ``rig_state`` -> ``/rig_state``.

@@ -7,9 +7,11 @@ on Jazzy and Kilted, from bags recorded by ``ros2 bag record``:
   message counts, start time and duration; ``offered_qos_profiles`` as a YAML list with policy
   names (``reliable``, ``best_effort``, ``keep_last``...) and infinite durations as
   ``{sec: 9223372036, nsec: 854775807}`` (``RMW_DURATION_INFINITE``), which is what the
-  recorder stores for publishers that leave them at their defaults. ``ros2 bag play`` offers
-  the recorded reliability/durability again, so ``rig_state`` plays best-effort (sensor data)
-  and every other clutch topic plays reliable.
+  recorder stores for publishers that leave them at their defaults (rosbags' version 9
+  writer, ``dump_qos_v9``, the format rosbag2 Jazzy and Kilted write). The offered QoS of a
+  clutch topic is what its publisher offers, from the one table
+  :data:`clutch_ros.interfaces.TOPICS` (``rig_state``: reliable, keep last 50, as the
+  can_bridge offers it); ``ros2 bag play`` offers the recorded reliability/durability again.
 - MCAP: ``ros2`` profile, ``ros2msg`` schemas, per-channel ``offered_qos_profiles`` metadata,
   chunk and message indexes, a Statistics record (total and per-channel message counts, time
   range) and the ``rosbag2`` metadata record, all written by rosbags.
@@ -32,7 +34,7 @@ from __future__ import annotations
 
 import shutil
 import struct
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,20 +48,18 @@ from rosbags.interfaces import (
 )
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
 
+from clutch_ros import interfaces
 from clutch_ros.bag.errors import BagError, BagExistsError, MessageFieldError, UnknownTypeError
 from clutch_ros.bag.reader import check_bag
 from clutch_ros.bag.typestore import (
-    CAN_FRAME,
-    CLUTCH_ESTIMATE,
-    PRESSURE_COMMAND,
-    RIG_STATE,
-    TORQUE_REQUEST,
+    RIG_STATE_TYPE,
     Typestore,
     clutch_typestore,
     rig_state_msg,
     topic_name,
 )
 from clutch_ros.errors import ConfigError
+from clutch_ros.interfaces import QosSpec
 
 __all__ = [
     "INFINITE",
@@ -70,6 +70,7 @@ __all__ = [
     "COMPRESSIONS",
     "BagWriter",
     "make_qos",
+    "qos_of",
     "storage_plugin",
     "write_rig_states",
 ]
@@ -78,34 +79,50 @@ __all__ = [
 INFINITE = QosTime(9223372036, 854775807)
 
 
-def make_qos(reliable: bool, depth: int, transient_local: bool = False) -> Qos:
-    """Return an offered QoS profile (keep-last ``depth``, automatic liveliness, no deadline)."""
+def _duration(ns: int | None) -> QosTime:
+    """Return a duration [ns] as rosbag2 stores it; None (infinite) as :data:`INFINITE`."""
+    if ns is None:
+        return INFINITE
+    sec, nsec = interfaces.ns_to_stamp(ns)
+    return QosTime(sec, nsec)
+
+
+def qos_of(spec: QosSpec) -> Qos:
+    """Return the rosbags offered-QoS record of a :class:`~clutch_ros.interfaces.QosSpec`.
+
+    Policy names map to rosbags' enums by name (``best_effort`` -> ``BEST_EFFORT``), so the
+    ``metadata.yaml`` text is the spec's own spelling.
+    """
     return Qos(
-        QosHistory.KEEP_LAST,
-        depth,
-        QosReliability.RELIABLE if reliable else QosReliability.BEST_EFFORT,
-        QosDurability.TRANSIENT_LOCAL if transient_local else QosDurability.VOLATILE,
-        INFINITE,
-        INFINITE,
-        QosLiveliness.AUTOMATIC,
-        INFINITE,
+        QosHistory[spec.history.upper()],
+        spec.depth,
+        QosReliability[spec.reliability.upper()],
+        QosDurability[spec.durability.upper()],
+        _duration(spec.deadline_ns),
+        _duration(spec.lifespan_ns),
+        QosLiveliness[spec.liveliness.upper()],
+        _duration(spec.liveliness_lease_ns),
         False,
     )
 
 
+def make_qos(reliable: bool, depth: int, transient_local: bool = False) -> Qos:
+    """Return an offered QoS profile (keep-last ``depth``, automatic liveliness, no deadline)."""
+    return qos_of(QosSpec(
+        interfaces.RELIABLE if reliable else interfaces.BEST_EFFORT,
+        interfaces.TRANSIENT_LOCAL if transient_local else interfaces.VOLATILE, depth))
+
+
 #: ``rclpy.qos.qos_profile_sensor_data``: best effort, keep last 5, volatile.
-SENSOR_DATA_QOS = make_qos(reliable=False, depth=5)
-#: rclpy's default publisher profile: reliable, keep last 10, volatile.
+SENSOR_DATA_QOS = qos_of(interfaces.SENSOR_DATA)
+#: rclpy's default publisher profile: reliable, keep last 10, volatile (a topic not in the
+#: table).
 RELIABLE_QOS = make_qos(reliable=True, depth=10)
 
-#: Default type and offered QoS of every clutch topic, by absolute name.
+#: Type and offered QoS (what its publisher offers) of every clutch topic, by absolute
+#: name, from :data:`clutch_ros.interfaces.TOPICS`.
 TOPICS: dict[str, tuple[str, Qos]] = {
-    "/rig_state": (RIG_STATE, SENSOR_DATA_QOS),
-    "/clutch_estimate": (CLUTCH_ESTIMATE, RELIABLE_QOS),
-    "/torque_request": (TORQUE_REQUEST, RELIABLE_QOS),
-    "/pressure_command": (PRESSURE_COMMAND, RELIABLE_QOS),
-    "/can_frames": (CAN_FRAME, RELIABLE_QOS),
-    "/diagnostics": ("diagnostic_msgs/msg/DiagnosticArray", RELIABLE_QOS),
+    t.absolute: (t.typename, qos_of(t.publisher)) for t in interfaces.TOPICS
 }
 
 #: Storage identifiers accepted by :class:`BagWriter`.
@@ -261,14 +278,16 @@ class BagWriter:
                 shutil.rmtree(self.path, ignore_errors=True)
 
     # -- topics and messages -----------------------------------------------------------------
-    def add_topic(self, name: str, typename: str | None = None, *, qos: Qos | None = None) -> str:
+    def add_topic(self, name: str, typename: str | None = None, *,
+                  qos: Qos | Sequence[Qos] | None = None) -> str:
         """Declare a topic; returns its absolute name.
 
         Args:
             name: topic name (relative names are resolved in the namespace).
             typename: ROS 2 type; default: the clutch type of a known topic (:data:`TOPICS`).
-            qos: offered QoS recorded for ``ros2 bag play``; default: sensor data for
-                ``rig_state``, reliable otherwise.
+            qos: offered QoS recorded for ``ros2 bag play``, one profile or one per publisher
+                (as ``ros2 bag record`` stores them); default: what the topic's publisher
+                offers (:data:`TOPICS`), reliable keep last 10 for any other topic.
 
         Raises:
             UnknownTypeError: type not in the typestore, or no type given for an unknown topic.
@@ -294,8 +313,9 @@ class BagWriter:
             return topic
         self.open()
         assert self._writer is not None
+        profiles = [default_qos] if not qos else [qos] if isinstance(qos, Qos) else list(qos)
         self._conns[topic] = self._writer.add_connection(
-            topic, typename, typestore=self.store, offered_qos_profiles=[qos or default_qos]
+            topic, typename, typestore=self.store, offered_qos_profiles=profiles
         )
         self._types[topic] = typename
         self.written[topic] = 0
@@ -378,7 +398,7 @@ def write_rig_states(
     samples: Iterable[tuple[int, Mapping[str, Any]]],
     *,
     storage: str = "mcap",
-    topic: str = "/rig_state",
+    topic: str = interfaces.RIG_STATE.absolute,
     frame_id: str = "rig",
     custom_data: Mapping[str, str] | None = None,
     on_sample: Callable[[int], None] | None = None,
@@ -388,7 +408,7 @@ def write_rig_states(
 
     The bag timestamp of each message equals its header stamp. The output is deleted again if
     ``samples`` raises (an import is all or nothing). A CAN-log importer only has to yield
-    samples in SI units with :data:`RIG_STATE` field names.
+    samples in SI units with :data:`RIG_STATE_TYPE` field names.
 
     Args:
         out_bag: bag directory to create.
@@ -412,7 +432,7 @@ def write_rig_states(
         compression=compression,
     )
     with writer:
-        name = writer.add_topic(topic, RIG_STATE)
+        name = writer.add_topic(topic, RIG_STATE_TYPE)
         count = 0
         for stamp_ns, fields in samples:
             writer.write(name, stamp_ns, rig_state_msg(stamp_ns, frame_id=frame_id, **fields))

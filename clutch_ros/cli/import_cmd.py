@@ -17,10 +17,11 @@ import sys
 import time
 from pathlib import Path
 
+from clutch_ros import interfaces
 from clutch_ros.bag.channel_map import load_map
 from clutch_ros.bag.csv_import import import_csv
 from clutch_ros.bag.mapped_import import MDF_SUFFIXES, import_mapped
-from clutch_ros.bag.typestore import CAN_FRAME, RIG_STATE, can_frame_msg, rig_state_msg
+from clutch_ros.bag.typestore import CAN_FRAME_TYPE, RIG_STATE_TYPE, can_frame_msg, rig_state_msg
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.canbus import LogSource, RigDatabase, RigStateAssembler
 from clutch_ros.canbus.logsource import Assembler
@@ -167,8 +168,9 @@ def _import_can(path: Path, target: Path, args, progress) -> dict:
     writer = BagWriter(target, storage=args.storage, delete_on_error=True,
                        custom_data={"source": str(path)})
     with writer:
-        rig_topic = writer.add_topic("/rig_state", RIG_STATE)
-        frame_topic = writer.add_topic("/can_frames", CAN_FRAME) if args.frames else None
+        rig_topic = writer.add_topic(interfaces.RIG_STATE.absolute, RIG_STATE_TYPE)
+        frame_topic = (writer.add_topic(interfaces.CAN_FRAMES.absolute, CAN_FRAME_TYPE)
+                       if args.frames else None)
 
         def store_frame(msg) -> None:
             assert frame_topic is not None  # tapped only with --frames

@@ -23,8 +23,9 @@ from typing import Any
 
 import numpy as np
 
+from clutch_ros import interfaces
 from clutch_ros.bag.reader import BagReader
-from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, RIG_STATE
+from clutch_ros.bag.typestore import CLUTCH_ESTIMATE_TYPE, RIG_STATE_TYPE
 from clutch_ros.dashboard.errors import DashboardError
 from clutch_ros.dashboard.server import absolute
 from clutch_ros.dashboard.topics import TOPICS, DashboardTopic
@@ -103,8 +104,8 @@ class BagStream:
             )
         self.topics = {name: have[name].typename for name in self._raw}
         self.counts = {name: have[name].count for name in self._raw}
-        est_topic = absolute("clutch_estimate", namespace)
-        rig_topic = absolute("rig_state", namespace)
+        est_topic = absolute(interfaces.CLUTCH_ESTIMATE.name, namespace)
+        rig_topic = absolute(interfaces.RIG_STATE.name, namespace)
         self._estimates = None
         self.computed = (
             est_topic in wanted and est_topic not in self.topics and rig_topic in self.topics
@@ -115,10 +116,10 @@ class BagStream:
             result = replay_bag(self.path, params, topic=rig_topic)
             self._estimates = result
             self._est_topic = est_topic
-            self.topics[est_topic] = CLUTCH_ESTIMATE
+            self.topics[est_topic] = CLUTCH_ESTIMATE_TYPE
             self.counts[est_topic] = int(published_rows(result.batch).sum())
             self._rig_times = np.asarray(result.rig.bag_time_ns, dtype=np.int64)
-        self.rig_topic = rig_topic if self.topics.get(rig_topic) == RIG_STATE else None
+        self.rig_topic = rig_topic if self.topics.get(rig_topic) == RIG_STATE_TYPE else None
         with BagReader(self.path) as reader:
             self.start_ns, self.end_ns = reader.start_ns, reader.end_ns
 

@@ -23,15 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
-from clutch_ros.bag.typestore import (
-    CLUTCH_ESTIMATE,
-    PRESSURE_COMMAND,
-    RIG_STATE,
-    TORQUE_REQUEST,
-    Typestore,
-    clutch_typestore,
-    msg_class,
-)
+from clutch_ros import interfaces
+from clutch_ros.bag.typestore import Typestore, clutch_typestore, msg_class
 
 __all__ = [
     "DIAGNOSTIC_ARRAY",
@@ -42,7 +35,7 @@ __all__ = [
     "message_definition",
 ]
 
-DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+DIAGNOSTIC_ARRAY = interfaces.DIAGNOSTICS.typename
 #: Foxglove message encoding of every channel: the bytes ROS publishes and rosbag2 stores.
 MESSAGE_ENCODING = "cdr"
 #: Foxglove schema encoding of every channel: ROS 2 ``.msg`` text.
@@ -58,7 +51,7 @@ class DashboardTopic:
             ``/diagnostics``); channels are advertised under the resolved absolute name.
         typename: ROS 2 type name, e.g. ``clutch_msgs/msg/RigState``.
         sensor_data: subscribe with sensor-data QoS (best effort) in live mode; otherwise
-            reliable.
+            reliable (the topic's subscriber QoS in :data:`clutch_ros.interfaces.TOPICS`).
 
     """
 
@@ -67,14 +60,13 @@ class DashboardTopic:
     sensor_data: bool = False
 
 
-#: The topics of the dashboard, in the order the channels are advertised.
-TOPICS: tuple[DashboardTopic, ...] = (
-    DashboardTopic("rig_state", RIG_STATE, sensor_data=True),
-    DashboardTopic("clutch_estimate", CLUTCH_ESTIMATE),
-    DashboardTopic("torque_request", TORQUE_REQUEST),
-    DashboardTopic("pressure_command", PRESSURE_COMMAND),
-    DashboardTopic("pump_request", PRESSURE_COMMAND),
-    DashboardTopic("/diagnostics", DIAGNOSTIC_ARRAY),
+#: The topics of the dashboard, in the order the channels are advertised: every clutch
+#: topic of :data:`clutch_ros.interfaces.TOPICS`, subscribed with its default subscriber QoS
+#: (``can_frames`` carries data only while the bridge publishes raw frames).
+TOPICS: tuple[DashboardTopic, ...] = tuple(
+    DashboardTopic(t.name, t.typename,
+                   sensor_data=t.subscriber.reliability == interfaces.BEST_EFFORT)
+    for t in interfaces.TOPICS
 )
 
 

@@ -42,11 +42,12 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
+from clutch_ros import interfaces
 from clutch_ros.bag.diagnose import blame_file
 from clutch_ros.bag.errors import BagCorruptError
 from clutch_ros.bag.reader import BagReader
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec, declare_params
-from clutch_ros.nodes.qos import reliable_qos
+from clutch_ros.nodes.qos import publisher_qos, reliable_qos
 from clutch_ros.nodes.runner import run_node
 from clutch_ros.nodes.stamps import sec_to_stamp
 
@@ -110,8 +111,11 @@ class BagPlayerNode(Node):
         self._types = {t: self._reader.topics[t].typename for t in self._topics}
         for topic in self._topics:
             info = self._reader.topics[topic]
+            # a clutch topic as its own publisher offers it (interfaces.TOPICS), any other
+            # reliable: a default and a sensor-data subscriber both receive the replay
+            qos = publisher_qos(topic) if interfaces.topic(topic) else reliable_qos()
             self._pubs[topic] = self.create_publisher(_msg_class(info.typename),
-                                                      topic.lstrip("/"), reliable_qos())
+                                                      topic.lstrip("/"), qos)
         self._clock_pub = (self.create_publisher(Clock, "/clock", 10)
                            if cfg["player.publish_clock"] else None)
         self.played = 0

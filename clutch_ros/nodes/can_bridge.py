@@ -39,17 +39,10 @@ DBC, signal map and log input are read-only (:mod:`clutch_ros.nodes.can_bridge_p
 ``pump.rate_limit`` was renamed ``pump.rise_rate_limit`` (as ``controller.rise_rate_limit``);
 the old name is still accepted, at start and live, with a deprecation warning.
 
-QoS (REP 2003; every publisher reliable, so default and sensor-data subscribers both receive):
-
-=================  =========  ======================================  =====================
-topic              direction  QoS                                     why
-=================  =========  ======================================  =====================
-``rig_state``      out        reliable, volatile, keep last 50        0.25 s at 200 Hz
-``pump_request``   out        reliable, volatile, keep last 50        on change only
-``can_frames``     out        reliable, volatile, keep last 1000      1 s of rig frames
-``/diagnostics``   out        reliable, volatile, keep last 10        1 Hz
-``pressure_command`` in       sensor data (best effort, keep last 5)  only the latest counts
-=================  =========  ======================================  =====================
+QoS (REP 2003): each publisher offers its topic's profile of :data:`clutch_ros.interfaces.TOPICS`
+(all reliable, so default and sensor-data subscribers both receive: ``rig_state`` keep last
+50, ``pump_request`` 50, ``can_frames`` 1000, ``/diagnostics`` 10); ``pressure_command`` is read
+with sensor-data QoS (best effort, keep last 5): only the latest command counts.
 
 Diagnostics ``hardware_id``: ``interface:channel`` of the bus (``socketcan:can0``),
 ``simulated rig (udp_multicast:GROUP)`` on python-can's software buses (udp_multicast,
@@ -79,6 +72,7 @@ from clutch_ros.canbus import (
 from clutch_ros.canbus.counters import PublishPacer
 from clutch_ros.canbus.signal_map import SignalMap
 from clutch_ros.errors import ClutchError
+from clutch_ros.interfaces import CAN_FRAMES, PRESSURE_COMMAND, PUMP_REQUEST, RIG_STATE
 from clutch_ros.nodes.can_bridge_params import (
     GATE_PARAMS,
     LIVE,
@@ -94,15 +88,15 @@ from clutch_ros.nodes.command_sources import CommandSources
 from clutch_ros.nodes.convert import can_frame_to_ros, rig_state_to_ros
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM
-from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+from clutch_ros.nodes.qos import publisher_qos, sensor_qos
 from clutch_ros.nodes.renamed_params import declare_with_renames
 from clutch_ros.nodes.runner import run_node
+from clutch_ros.nodes.stamps import stamp_to_sec
 
 NAME = "can_bridge"
 IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning
 SEND_TIMEOUT = 0.005  # [s] a pump request never blocks the executor longer
 FLUSH_PERIOD = 0.05  # [s] with publish_on: a frame held back by bridge.rate goes out then
-RIG_STATE_DEPTH, PUMP_REQUEST_DEPTH, RAW_DEPTH = 50, 50, 1000
 OK, FAIL = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 
 
@@ -150,7 +144,7 @@ class CanBridgeNode(LifecycleNode):
                 st.bus = ReconnectingBus(config, on_event=self._on_link_event)
                 self._notifier = can.Notifier(st.bus, [self._on_frame], timeout=0.1)
                 self.get_logger().info(f"CAN {config.describe()} open; decoding with {db.path}")
-                self._sub = self.create_subscription(PressureCommand, "pressure_command",
+                self._sub = self.create_subscription(PressureCommand, PRESSURE_COMMAND.name,
                                                      self._on_command, sensor_qos())
                 st.sources.topic = self._sub.topic_name
         except (ClutchError, ValueError) as err:
@@ -159,12 +153,12 @@ class CanBridgeNode(LifecycleNode):
             self._close_bus()
             st.clear()
             return FAIL
-        self._rig_pub = self.create_lifecycle_publisher(RigState, "rig_state",
-                                                        reliable_qos(RIG_STATE_DEPTH))
-        self._cmd_pub = self.create_lifecycle_publisher(PressureCommand, "pump_request",
-                                                        reliable_qos(PUMP_REQUEST_DEPTH))
-        self._raw_pub = (self.create_lifecycle_publisher(CanFrame, "can_frames",
-                                                         reliable_qos(RAW_DEPTH))
+        self._rig_pub = self.create_lifecycle_publisher(
+            RigState, RIG_STATE.name, publisher_qos(RIG_STATE.name))
+        self._cmd_pub = self.create_lifecycle_publisher(
+            PressureCommand, PUMP_REQUEST.name, publisher_qos(PUMP_REQUEST.name))
+        self._raw_pub = (self.create_lifecycle_publisher(
+            CanFrame, CAN_FRAMES.name, publisher_qos(CAN_FRAMES.name))
                          if cfg["bridge.publish_raw"] else None)
         st.lifecycle = "inactive"
         return super().on_configure(state)
@@ -392,7 +386,7 @@ class CanBridgeNode(LifecycleNode):
         if reason is not None:
             gate.refuse(kind, reason)
             return
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        stamp = stamp_to_sec(msg.header.stamp)
         admitted = gate.commands
         out = gate.submit(msg.pressure, stamp if stamp > 0.0 else None)
         self._send(out, msg if gate.commands != admitted else None)

@@ -47,13 +47,14 @@ from rclpy.node import Node
 
 from clutch_ros.config.presets import default_preset
 from clutch_ros.errors import ClutchError
+from clutch_ros.interfaces import CLUTCH_ESTIMATE, PRESSURE_COMMAND, RIG_STATE, TORQUE_REQUEST
 from clutch_ros.model.control import TorqueController
 from clutch_ros.nodes.controller_params import PARAMS, TIMEOUTS, controller_settings
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.model_params import apply_model_changes, declare_model_params
 from clutch_ros.nodes.parameters import declare_params
 from clutch_ros.nodes.peers import Input, PeerWatch
-from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+from clutch_ros.nodes.qos import publisher_qos, sensor_qos, subscriber_qos
 from clutch_ros.nodes.runner import run_node
 from clutch_ros.nodes.stamps import stamp_to_sec
 
@@ -69,24 +70,26 @@ class ControllerNode(Node):
         params = declare_model_params(self, default_preset("flexiforce_8"))
         self._ctl = TorqueController(params, controller_settings(cfg))
         self._peers = PeerWatch(self, [
-            Input("torque request", "torque_request", cfg["controller.request_timeout"],
+            Input("torque request", TORQUE_REQUEST.name, cfg["controller.request_timeout"],
                   "a torque-request source"),
-            Input("rig data", "rig_state", cfg["controller.rig_timeout"], "can_bridge"),
-            Input("estimate", "clutch_estimate", cfg["controller.estimate_timeout"],
-                  "estimator")])
+            Input("rig data", RIG_STATE.name, cfg["controller.rig_timeout"],
+                  RIG_STATE.publisher_node),
+            Input("estimate", CLUTCH_ESTIMATE.name, cfg["controller.estimate_timeout"],
+                  CLUTCH_ESTIMATE.publisher_node)])
         self._estimate = None
         self._counts = {"commands": 0, "limited": 0, "failsafe": 0, "bad_requests": 0}
         self._last_reason = ""
         self._warn = LogThrottle(5.0)
-        self._pub = self.create_publisher(PressureCommand, "pressure_command", reliable_qos())
-        # QoS (README, "QoS"): pressure_command reliable, depth 200. Inputs: torque requests
-        # are commands, so reliable (depth 5: only the newest matters); rig_state and
-        # clutch_estimate are state of which only the latest sample is used: sensor-data QoS
-        # (best effort, depth 5), which matches reliable and best-effort publishers alike.
-        self.create_subscription(TorqueRequest, "torque_request", self._on_request,
-                                 reliable_qos(depth=5))
-        self.create_subscription(RigState, "rig_state", self._on_rig, sensor_qos())
-        self.create_subscription(ClutchEstimate, "clutch_estimate", self._on_estimate,
+        self._pub = self.create_publisher(PressureCommand, PRESSURE_COMMAND.name,
+                                          publisher_qos(PRESSURE_COMMAND.name))
+        # QoS (interfaces.TOPICS): inputs: torque requests are commands, so reliable (depth
+        # 5: only the newest matters); rig_state and clutch_estimate are state of which only
+        # the latest sample is used: sensor-data QoS (best effort, depth 5), which matches
+        # reliable and best-effort publishers alike.
+        self.create_subscription(TorqueRequest, TORQUE_REQUEST.name, self._on_request,
+                                 subscriber_qos(TORQUE_REQUEST.name, depth=5))
+        self.create_subscription(RigState, RIG_STATE.name, self._on_rig, sensor_qos())
+        self.create_subscription(ClutchEstimate, CLUTCH_ESTIMATE.name, self._on_estimate,
                                  sensor_qos())
         self._timer = self.create_timer(self._ctl.settings.period, self._tick)
         self.add_on_set_parameters_callback(self._on_set_parameters)

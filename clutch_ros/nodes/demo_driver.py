@@ -18,7 +18,8 @@ from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.task import Future
 
-from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+from clutch_ros.interfaces import CLUTCH_ESTIMATE, PRESSURE_COMMAND, RIG_STATE, TORQUE_REQUEST
+from clutch_ros.nodes.qos import publisher_qos, sensor_qos, subscriber_qos
 from clutch_ros.rig.request_profile import request_at, slip_at
 
 __all__ = ["DemoDriver"]
@@ -38,12 +39,13 @@ class DemoDriver(Node):
         self._slip_set: float | None = None
         self._slip_future: Future[Any] | None = None
         self._params = AsyncParameterClient(self, rig_node)
-        self._pub = self.create_publisher(TorqueRequest, "torque_request", reliable_qos())
-        self.create_subscription(RigState, "rig_state", self._keep("rig"), sensor_qos())
-        self.create_subscription(ClutchEstimate, "clutch_estimate", self._keep("estimate"),
-                                 reliable_qos())
-        self.create_subscription(PressureCommand, "pressure_command", self._keep("command"),
-                                 reliable_qos())
+        self._pub = self.create_publisher(TorqueRequest, TORQUE_REQUEST.name,
+                                          publisher_qos(TORQUE_REQUEST.name))
+        self.create_subscription(RigState, RIG_STATE.name, self._keep("rig"), sensor_qos())
+        self.create_subscription(ClutchEstimate, CLUTCH_ESTIMATE.name, self._keep("estimate"),
+                                 subscriber_qos(CLUTCH_ESTIMATE.name))
+        self.create_subscription(PressureCommand, PRESSURE_COMMAND.name, self._keep("command"),
+                                 subscriber_qos(PRESSURE_COMMAND.name))
         self.create_timer(1.0 / rate_hz, self._tick)
 
     def _keep(self, key: str):

@@ -32,8 +32,8 @@ import math
 from clutch_msgs.msg import ClutchEstimate, RigState
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+from clutch_ros import interfaces
 from clutch_ros.config.params_file import load_flat
 from clutch_ros.config.presets import default_preset
 from clutch_ros.errors import ClutchError
@@ -50,12 +50,13 @@ from clutch_ros.nodes.model_params import (
 )
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec, declare_params
 from clutch_ros.nodes.peers import Input, PeerWatch
-from clutch_ros.nodes.qos import reliable_qos
+from clutch_ros.nodes.qos import publisher_qos, subscriber_qos
 from clutch_ros.nodes.runner import run_node
 from clutch_ros.nodes.stamps import stamp_to_sec
 from clutch_ros.offline.adapt import save_adapted_params
 
 NAME = "estimator"
+_RIG_STATE, _CLUTCH_ESTIMATE = interfaces.RIG_STATE.name, interfaces.CLUTCH_ESTIMATE.name
 DRAIN_MAX = 50  # queued rig_state samples taken per callback, beyond the one it was called for
 PARAMS = [
     ParamSpec("estimator.max_sample_age", 0.5, "skip samples whose stamp is older than this "
@@ -90,26 +91,27 @@ class EstimatorNode(Node):
         self._skipped: dict[str, int] = {}
         self._accepted = 0
         self._accepted_at_last_diag = 0
-        self._peers = PeerWatch(self, [Input("rig data", "rig_state",
+        self._peers = PeerWatch(self, [Input("rig data", _RIG_STATE,
                                              self._cfg["estimator.input_timeout"],
                                              "can_bridge")])
         self._last_error = ""
         self._warn = LogThrottle(5.0)
-        self._pub = self.create_publisher(_msg_type(), "clutch_estimate", reliable_qos())
+        self._pub = self.create_publisher(_msg_type(), _CLUTCH_ESTIMATE,
+                                          publisher_qos(_CLUTCH_ESTIMATE))
         self._out = EstimateMessage(self._pub.msg_type)
         self._published = 0
         self._until_publish = 0  # accepted estimates to skip before the next publish
         # The node clock's C handle: its get_now() is the node's time (ROS time, /clock with
         # use_sim_time) without a rclpy Time object per sample.
         self._clock_handle = self.get_clock().handle
-        # Sensor-data QoS (best effort) as the bridge offers it, with a deep queue so a
-        # stall of the estimator does not overwrite samples; samples lost anyway are counted
-        # exactly from the DDS publication sequence numbers.
+        # rig_state's subscriber QoS (best effort, which matches the bridge's reliable
+        # publisher), with a deep queue so a stall of the estimator does not overwrite
+        # samples; samples lost anyway are counted exactly from the DDS sequence numbers.
         self._loss = LossTracker()
-        self._loss.add_topic("rig_state")
-        self._sub = self.create_subscription(_rig_state_type(), "rig_state", self._on_rig_state,
-                                             QoSProfile(depth=self._cfg["estimator.queue_depth"],
-                                                        reliability=ReliabilityPolicy.BEST_EFFORT))
+        self._loss.add_topic(_RIG_STATE)
+        self._sub = self.create_subscription(
+            _rig_state_type(), _RIG_STATE, self._on_rig_state,
+            subscriber_qos(_RIG_STATE, depth=self._cfg["estimator.queue_depth"]))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
         self.get_logger().info(f"estimating with spline law '{self._params.spline.law}', "
@@ -132,7 +134,7 @@ class EstimatorNode(Node):
                 self._on_sample(*taken)
 
     def _on_sample(self, msg, info) -> None:
-        lost = self._loss.received("rig_state", info)
+        lost = self._loss.received(_RIG_STATE, info)
         if lost:
             self._skip("lost_in_transport", f"{lost} rig_state samples lost before this one",
                        count=lost)

@@ -1,7 +1,8 @@
 """The ``recorder`` node: clutch topics (or any topics) into rosbag2 bags via rosbags.
 
-Topics: ``recorder.topics`` (default: every clutch topic, ``pump_request`` and
-``/diagnostics``). Each topic is subscribed once the ROS graph shows a publisher of it
+Topics: ``recorder.topics`` (default: every clutch topic of
+:data:`clutch_ros.interfaces.TOPICS`, ``pump_request``, ``can_frames`` and ``/diagnostics``
+included). Each topic is subscribed once the ROS graph shows a publisher of it
 (looked up at start and every 0.25 s after), as ``ros2 bag record`` does; a name outside
 that table is recorded with the type the graph advertises for it (its type must be in the
 bag typestore: the clutch messages and the ROS 2 base distribution).
@@ -20,7 +21,11 @@ rosbag2's files inside one bag, so every part replays and imports on its own). W
 QoS: a topic whose publishers (when the recorder subscribes, as ``ros2 bag record`` decides)
 all offer reliable is subscribed reliable with KEEP_ALL history, so a burst is queued rather
 than overwritten; otherwise best effort with a ``recorder.queue_depth`` queue, which matches
-every publisher.
+every publisher. The bag records, per topic, the QoS each publisher offers (one profile per
+publisher, as ``ros2 bag record`` stores them), read from the ROS graph when the topic is added
+to the bag; DDS discovery does not carry the history and depth, so those (and everything when
+no publisher is known yet) come from the topic's publisher profile in
+:data:`clutch_ros.interfaces.TOPICS`. ``ros2 bag play`` offers them again.
 
 Loss accounting (:class:`clutch_ros.nodes.loss_tracker.LossTracker`): every sample carries its
 publisher's DDS sequence number, so a gap is counted exactly, per topic, as ``dropped`` and
@@ -60,7 +65,8 @@ from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from clutch_ros.bag.writer import BagWriter
+from clutch_ros import interfaces
+from clutch_ros.bag.writer import BagWriter, qos_of
 from clutch_ros.errors import ClutchError
 from clutch_ros.nodes.diagnostics import Diagnostics
 from clutch_ros.nodes.loss_tracker import LossTracker, format_counts
@@ -71,20 +77,14 @@ from clutch_ros.nodes.parameters import (
     format_help,
     help_requested,
 )
-from clutch_ros.nodes.runner import make_executor
+from clutch_ros.nodes.qos import spec_of
+from clutch_ros.nodes.realtime import REALTIME_PARAMS
+from clutch_ros.nodes.runner import make_executor, start_realtime
 
 NAME = "recorder"
 RESOLVE_PERIOD = 0.25  # [s] how often topics without a publisher yet are looked up
-#: clutch topic -> its ROS type "pkg/msg/Name"
-DEFAULT_TOPICS = {
-    "rig_state": "clutch_msgs/msg/RigState",
-    "clutch_estimate": "clutch_msgs/msg/ClutchEstimate",
-    "torque_request": "clutch_msgs/msg/TorqueRequest",
-    "pressure_command": "clutch_msgs/msg/PressureCommand",
-    "pump_request": "clutch_msgs/msg/PressureCommand",
-    "can_frames": "clutch_msgs/msg/CanFrame",
-    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
-}
+#: clutch topic -> its ROS type "pkg/msg/Name" (:data:`clutch_ros.interfaces.TOPICS`)
+DEFAULT_TOPICS = {t.name: t.typename for t in interfaces.TOPICS}
 PARAMS = [
     ParamSpec("recorder.output", "", "bag directory to create (must not exist); empty: "
               "runs/rec-YYYYmmdd-HHMMSS in the working directory; with splitting, the "
@@ -142,6 +142,7 @@ class RecorderNode(Node):
         self.parts: list[Path] = []
         self._closed_written: dict[str, int] = {}
         self._types: dict[str, str] = {}  # absolute topic -> type
+        self._qos: dict[str, list] = {}  # absolute topic -> offered QoS recorded (rosbags)
         self._writer = self._new_part()
         self.loss = LossTracker()
         self._pending = []
@@ -185,9 +186,27 @@ class RecorderNode(Node):
         return bool(infos) and all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE
                                    for i in infos)
 
+    def _offered_qos(self, topic: str) -> list:
+        """Return the offered QoS to record for ``topic`` (rosbags profiles; empty: default).
+
+        One profile per publisher the graph shows (:func:`~clutch_ros.nodes.qos.spec_of`: what
+        discovery leaves unknown, the history and depth, from the table); the table's
+        publisher profile while none is known. Empty for an unknown topic without publishers
+        (the writer's default).
+        """
+        known = interfaces.topic(topic)
+        table = known.publisher if known is not None else None
+        infos = self.get_publishers_info_by_topic(self.resolve_topic_name(topic))
+        specs = [spec_of(info.qos_profile, table) for info in infos]
+        if not specs and table is not None:
+            specs = [table]
+        return [qos_of(spec) for spec in specs]
+
     def _register(self, topic: str, typename: str) -> str:
         """Add ``topic`` to the bag and the loss counts (idempotent); return its full name."""
-        name = self._writer.add_topic(topic, typename)
+        qos = self._offered_qos(topic)
+        name = self._writer.add_topic(topic, typename, qos=qos)
+        self._qos.setdefault(name, qos)
         self._types[name] = typename
         self.loss.add_topic(name)
         return name
@@ -238,7 +257,7 @@ class RecorderNode(Node):
         writer = BagWriter(path, storage=self._cfg["recorder.storage"],
                            namespace=self.get_namespace()).open()
         for topic, typename in self._types.items():
-            writer.add_topic(topic, typename)
+            writer.add_topic(topic, typename, qos=self._qos.get(topic))
         self._part_bytes, self._part_start = 0, None
         return writer
 
@@ -250,7 +269,7 @@ class RecorderNode(Node):
             self._part_start = stamp_ns
             return
         if (size and self._part_bytes >= size) or \
-                (span and (stamp_ns - self._part_start) * 1e-9 >= span):
+                (span and interfaces.ns_to_s(stamp_ns - self._part_start) >= span):
             if not self._split:  # splitting switched on live: this bag stays as it is
                 return
             self._finish(self._writer)
@@ -374,6 +393,7 @@ def _run(args) -> int:
     try:
         try:
             node = RecorderNode()
+            realtime = start_realtime(node)  # rt.* (nodes/realtime.py), like every node
         except (ClutchError, ValueError, ParameterException) as err:
             sys.stderr.write(f"{NAME}: error: {err}\n")
             return 2
@@ -384,6 +404,7 @@ def _run(args) -> int:
         while not stop["now"]:
             executor.spin_once(timeout_sec=0.1)
         drained = node.drain(executor)
+        del realtime  # its /diagnostics timer lived as long as the spin
         node.get_logger().info(f"shutdown: {drained} queued messages drained")
         node.close()
         executor.shutdown()
@@ -398,7 +419,7 @@ def main(args=None) -> int:
     """Console entry point: ``ros2 run clutch_ros recorder``."""
     argv = list(sys.argv[1:] if args is None else args)
     if help_requested(argv):
-        sys.stdout.write(format_help(NAME, __doc__, PARAMS))
+        sys.stdout.write(format_help(NAME, __doc__, [*PARAMS, *REALTIME_PARAMS]))
         return 0
     return _run(argv)
 

@@ -26,7 +26,7 @@ from clutch_ros.nodes.realtime import (
     declare_realtime,
 )
 
-__all__ = ["DEFAULT_EXECUTOR", "EVENTS_WARNING", "make_executor", "run_node"]
+__all__ = ["DEFAULT_EXECUTOR", "EVENTS_WARNING", "make_executor", "run_node", "start_realtime"]
 
 
 #: Executor the nodes spin by default. SingleThreadedExecutor: measured by
@@ -94,9 +94,7 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     started = False
     try:
         node = factory()
-        settings = declare_realtime(node)  # every node's rt.* parameters (nodes/realtime.py)
-        realtime = _report_realtime(node, apply_realtime(settings)) if settings.requested \
-            else None
+        realtime = start_realtime(node)
         started = True
         # everything built so far lives as long as the node: out of the collector's sight, so
         # a full collection (every ~10^5 allocations at 1 kHz) does not walk the imported
@@ -130,6 +128,16 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def start_realtime(node) -> Diagnostics | None:
+    """Declare the node's ``rt.*`` parameters, apply them, report (ValueError if invalid).
+
+    Returns the ``<node>/realtime`` status publisher when an option was requested (keep it as
+    long as the node spins), else None.
+    """
+    settings = declare_realtime(node)  # every node's rt.* parameters (nodes/realtime.py)
+    return _report_realtime(node, apply_realtime(settings)) if settings.requested else None
 
 
 def _report_realtime(node, report: RealtimeReport) -> Diagnostics:

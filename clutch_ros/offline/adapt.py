@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from clutch_ros import interfaces
 from clutch_ros.bag.errors import BagError
 from clutch_ros.bag.rig_states import model_inputs, read_rig_states
 from clutch_ros.config.params_file import write_params
@@ -35,9 +36,9 @@ from clutch_ros.offline.replay import ReplayResult, published_rows, write_estima
 __all__ = ["ADAPTATION_FIELDS", "AdaptiveReplay", "AdaptationEvent", "adaptive_replay",
            "save_adapted_params", "write_adaptive_estimates"]
 
-#: Adaptation columns of the result (the ClutchEstimate fields of the same names).
-ADAPTATION_FIELDS = ("friction_scale", "friction_scale_std", "spline_gain_scale",
-                     "spline_gain_scale_std", "adapting", "adaptation_frozen")
+#: Adaptation columns of the result: the ClutchEstimate fields filled from the adaptation
+#: (:data:`clutch_ros.interfaces.ESTIMATE_FIELDS`), the four float64 ones first.
+ADAPTATION_FIELDS = interfaces.estimate_fields("adaptation")
 _BATCH_SCALARS = ("modelled_torque", "reference_torque", "measured_torque", "torque_accuracy",
                   "friction_coefficient", "front_pressure", "rear_pressure",
                   "pressure_difference", "slip_speed_filtered", "actuating_pressure",

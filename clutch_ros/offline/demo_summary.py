@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from clutch_ros.bag.reader import BagReader
+from clutch_ros.interfaces import CLUTCH_ESTIMATE, DIAGNOSTICS, PRESSURE_COMMAND, RIG_STATE
 from clutch_ros.model.metrics import longest_run
 from clutch_ros.offline.steady_state import plateau_errors
 from clutch_ros.rig.request_profile import request_at, settled_mask
@@ -33,19 +34,19 @@ class DemoSeries:
         cmd_t, cmd_p, cmd_trim = [], [], []
         lost = []  # (log time [s], the rig's lost_time_s) from its /diagnostics
         with BagReader(bag) as reader:
-            topics = ["/rig_state", "/clutch_estimate", "/pressure_command"]
-            topics += ["/diagnostics"] if "/diagnostics" in reader.topics else []
+            topics = [RIG_STATE.absolute, CLUTCH_ESTIMATE.absolute, PRESSURE_COMMAND.absolute]
+            topics += [DIAGNOSTICS.absolute] if DIAGNOSTICS.absolute in reader.topics else []
             for topic, stamp_ns, msg in reader.messages(topics):
-                if topic == "/diagnostics":
+                if topic == DIAGNOSTICS.absolute:
                     lost += [(stamp_ns * 1e-9, float(kv.value)) for st in msg.status
                              if st.name == "/rig_sim" for kv in st.values
                              if kv.key == "lost_time_s"]
                     continue
-                if topic == "/rig_state":
+                if topic == RIG_STATE.absolute:
                     rig_t.append(_stamp(msg))
                     meas.append(msg.measured_torque if msg.has_measured_torque else math.nan)
                     press.append(msg.actuating_pressure)
-                elif topic == "/clutch_estimate":
+                elif topic == CLUTCH_ESTIMATE.absolute:
                     est_t.append(_stamp(msg))
                     model.append(msg.modelled_torque)
                     ref.append(msg.reference_torque)

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from clutch_ros.bag.reader import BagReader
+from clutch_ros.interfaces import CLUTCH_ESTIMATE
 from clutch_ros.offline.demo_summary import BAND, load_series
 
 __all__ = ["plot_demo", "new_figure", "save_figure", "fit_category_labels", "demo_run_name"]
@@ -114,7 +115,7 @@ def demo_run_name(bag) -> str:
 def _recorded_law(bag) -> str:
     """Return the estimator's spline law as recorded in the first ClutchEstimate."""
     with BagReader(bag) as reader:
-        for _, _, msg in reader.messages(["/clutch_estimate"]):
+        for _, _, msg in reader.messages([CLUTCH_ESTIMATE.absolute]):
             return msg.spline_law or "unknown"
     return "unknown (no estimates recorded)"
 

@@ -6,9 +6,12 @@ The back end of ``clutch replay`` (and of the golden regression data and the ben
 2. :func:`clutch_ros.model.estimate_batch` runs the estimator over it, identical to the
    live estimator node's per-sample ``ClutchEstimator.update()`` (rejected samples skipped
    the same way). Stamps are converted to seconds exactly as the node does
-   (``sec + nanosec * 1e-9``), so both see bit-identical time steps;
+   (:func:`clutch_ros.interfaces.stamp_to_s`), so both see bit-identical time steps;
 3. :func:`write_estimates` writes one ``ClutchEstimate`` per sample the node would publish
-   (accepted, finite torque) with the input's header stamp and frame id, as the node does.
+   (accepted, finite torque) with the input's header stamp and frame id, as the node does,
+   every field of :data:`clutch_ros.interfaces.ESTIMATE_FIELDS` filled as the node fills it:
+   the model's outputs per sample, the adaptation fields as a node with ``adapt.enabled``
+   false publishes them (``clutch replay --adapt`` writes the adaptation it ran).
 
 Steps 1 and 2 overlap when a second core is free (``pipeline``): the estimate runs in a worker
 thread on the blocks already read (:mod:`~clutch_ros.offline.streaming`), with the same result.
@@ -24,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from clutch_ros import interfaces
 from clutch_ros.bag.arrays import TemplateSerializer, write_columns
 from clutch_ros.bag.errors import BagError
 from clutch_ros.bag.reader import BagReader
@@ -33,9 +37,10 @@ from clutch_ros.bag.rig_states import (
     model_inputs,
     read_rig_states,
 )
-from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, Typestore
+from clutch_ros.bag.typestore import CLUTCH_ESTIMATE_TYPE, Typestore
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.model import accuracy_summary, estimate_batch
+from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimator
 from clutch_ros.offline.streaming import StreamedEstimate, spare_core
 
 __all__ = [
@@ -49,13 +54,9 @@ __all__ = [
     "write_estimates",
 ]
 
-#: EstimateBatch arrays written into each ClutchEstimate (same names as the message).
-ESTIMATE_FIELDS = (
-    "modelled_torque", "reference_torque", "measured_torque", "torque_accuracy",
-    "friction_coefficient", "lamella_normal_force", "spline_friction_force", "front_pressure",
-    "rear_pressure", "pressure_difference", "slip_speed_filtered", "actuating_pressure",
-    "lamella_temperature", "overshoot", "undershoot",
-)  # fmt: skip
+#: EstimateBatch arrays written into each ClutchEstimate (same names as the message): the
+#: numeric model outputs of :data:`clutch_ros.interfaces.ESTIMATE_FIELDS`.
+ESTIMATE_FIELDS = interfaces.estimate_fields("estimate", ("float64", "float64[]", "bool"))
 
 
 @dataclass
@@ -72,6 +73,7 @@ class ReplayResult:
             ``estimate_s`` [s], ``streamed`` (the estimate overlapped the read; then
             ``read_s`` includes the overlapped part of the estimate and ``estimate_s`` is
             what was left after the read), ``streamed_pieces`` (how many pieces).
+        params: the model parameters it ran with (None when not known).
 
     """
 
@@ -79,6 +81,7 @@ class ReplayResult:
     rig: RigStateArrays
     batch: Any
     summary: dict[str, Any] = field(default_factory=dict)
+    params: Any = None
 
 
 def stamps_s(rig: RigStateArrays) -> np.ndarray:
@@ -149,7 +152,7 @@ def replay_bag(
         read_s=read_s,
         estimate_s=estimate_s,
     )
-    return ReplayResult(path, rig, batch, summary)
+    return ReplayResult(path, rig, batch, summary, params)
 
 
 @dataclass(frozen=True)
@@ -214,7 +217,7 @@ def write_estimates(
     with BagWriter(
         out, storage=storage, compression=compression, delete_on_error=True, custom_data=custom
     ) as writer:
-        topic = writer.add_topic("/clutch_estimate", CLUTCH_ESTIMATE)
+        topic = writer.add_topic(interfaces.CLUTCH_ESTIMATE.absolute, CLUTCH_ESTIMATE_TYPE)
         return write_columns(writer, topic, serializer, stamps, columns)
 
 
@@ -237,15 +240,35 @@ def estimate_layout(
     rows = np.flatnonzero(published_rows(batch))
     n_lamellas = batch.lamella_normal_force.shape[1]
     serializer = TemplateSerializer(
-        CLUTCH_ESTIMATE,
+        CLUTCH_ESTIMATE_TYPE,
         frame_id=_first_frame_id(result),
         spline_law=batch.spline_law,
         lamella_normal_force=np.zeros(n_lamellas),
         spline_friction_force=np.zeros(n_lamellas),
     )
     columns = {name: getattr(batch, name)[rows] for name in ESTIMATE_FIELDS}
+    columns.update({name: np.full(rows.size, value)
+                    for name, value in _adaptation_off(result).items()})
     stamps = np.asarray(result.rig.stamp_ns, dtype=np.int64)[rows]
     return serializer, rows, stamps, columns
+
+
+def _adaptation_off(result: ReplayResult) -> dict[str, float | bool]:
+    """Return the ClutchEstimate adaptation fields as a node without adaptation fills them.
+
+    The node runs an ``AdaptiveEstimator``; with ``adapt.enabled`` false its status is
+    constant (scale 1 and the prior standard deviations, state ``off``), and the model is
+    the replay's own. One value per field (:func:`estimate_layout` gives it every row).
+    """
+    if result.params is None:  # not known (an adaptive replay adds its own columns)
+        return {}
+    status = AdaptiveEstimator(result.params, AdaptationSettings(enabled=False)).status
+    out: dict[str, float | bool] = {}
+    for f in interfaces.ESTIMATE_FIELDS:
+        if f.source == "adaptation":
+            value = getattr(status, f.attr)
+            out[f.name] = (value == f.state) if f.state else value
+    return out
 
 
 def _first_frame_id(result: ReplayResult) -> str:

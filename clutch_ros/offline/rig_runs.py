@@ -22,9 +22,9 @@ from typing import Any
 
 import numpy as np
 
-from clutch_ros import rigstate
+from clutch_ros import interfaces, rigstate
 from clutch_ros.bag.arrays import TemplateSerializer, write_columns
-from clutch_ros.bag.typestore import RIG_STATE
+from clutch_ros.bag.typestore import RIG_STATE_TYPE
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.errors import ConfigError
 from clutch_ros.rig.plant import RigPlant
@@ -172,7 +172,7 @@ def write_run(
     ff = cols["ff_voltages"].shape[1]
     wheels = cols["wheel_speeds"].shape[1]
     serializer = TemplateSerializer(
-        RIG_STATE, frame_id=frame_id, ff_voltages=np.zeros(ff), wheel_speeds=np.zeros(wheels)
+        RIG_STATE_TYPE, frame_id=frame_id, ff_voltages=np.zeros(ff), wheel_speeds=np.zeros(wheels)
     )
     if wheels == 0:
         cols.pop("wheel_speeds")
@@ -188,6 +188,6 @@ def write_run(
         path, storage=storage, compression=compression, custom_data=custom, delete_on_error=True
     )
     with writer:
-        topic = writer.add_topic("/rig_state")
+        topic = writer.add_topic(interfaces.RIG_STATE.absolute)
         write_columns(writer, topic, serializer, run.stamp_ns, cols)
     return writer

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Plateau", "PlateauError", "plateau_errors", "request_plateaus",
+__all__ = ["Plateau", "PlateauFigure", "plateau_errors", "request_plateaus",
            "steady_state_error"]
 
 
@@ -35,7 +35,7 @@ class Plateau:
 
 
 @dataclass(frozen=True)
-class PlateauError:
+class PlateauFigure:
     """One plateau's figure: the mean measured torque over its last window [N m], the error."""
 
     plateau: Plateau
@@ -75,7 +75,7 @@ def request_plateaus(profile, *, min_duration: float = 1.0, min_request: float =
 
 
 def plateau_errors(profile, time, measured, rated_torque: float, *, min_duration: float = 1.0,
-                   min_fraction: float = 0.10, window: float = 0.5) -> list[PlateauError]:
+                   min_fraction: float = 0.10, window: float = 0.5) -> list[PlateauFigure]:
     """Return the error of every qualifying plateau (module docstring).
 
     ``time`` [s] is on the profile's clock, ``measured`` [N m] the measured torque (NaN where
@@ -90,7 +90,7 @@ def plateau_errors(profile, time, measured, rated_torque: float, *, min_duration
         inside = (t >= plateau.end - window) & (t < plateau.end) & np.isfinite(meas)
         n = int(inside.sum())
         mean = float(meas[inside].mean()) if n else math.nan
-        rows.append(PlateauError(plateau, mean, abs(mean / plateau.request - 1.0), n))
+        rows.append(PlateauFigure(plateau, mean, abs(mean / plateau.request - 1.0), n))
     return rows
 
 

@@ -7,9 +7,9 @@ import pytest
 from rosbags.interfaces import Nodetype
 
 from clutch_ros.bag.typestore import (
-    CLUTCH_ESTIMATE,
+    CLUTCH_ESTIMATE_TYPE,
     CLUTCH_TYPES,
-    RIG_STATE,
+    RIG_STATE_TYPE,
     clutch_typestore,
     make_msg,
 )
@@ -69,8 +69,8 @@ def store():
 def write_sample_bag(path: Path, storage: str = "mcap", n: int = 50) -> dict:
     """Write a bag with every clutch type; returns {topic: [(timestamp_ns, msg), ...]}."""
     topics = {
-        "/rig_state": RIG_STATE,
-        "/clutch_estimate": CLUTCH_ESTIMATE,
+        "/rig_state": RIG_STATE_TYPE,
+        "/clutch_estimate": CLUTCH_ESTIMATE_TYPE,
         "/torque_request": "clutch_msgs/msg/TorqueRequest",
         "/pressure_command": "clutch_msgs/msg/PressureCommand",
         "/can_frames": "clutch_msgs/msg/CanFrame",

@@ -7,7 +7,7 @@ from clutch_ros.bag.arrays import TemplateSerializer, read_columns, write_column
 from clutch_ros.bag.errors import MessageFieldError
 from clutch_ros.bag.reader import open_bag
 from clutch_ros.bag.rig_states import read_rig_states
-from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, RIG_STATE, make_msg
+from clutch_ros.bag.typestore import CLUTCH_ESTIMATE_TYPE, RIG_STATE_TYPE, make_msg
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.errors import ConfigError
 from clutch_ros.offline.rig_runs import START_NS, simulate_run, write_run
@@ -28,19 +28,19 @@ def test_template_bytes_equal_rosbags_serialization(store):
         "pressure_difference": -rng.random(n) * 1e5,
     }
     stamps = STAMP_NS + np.arange(n) * 1_234_567
-    ser = TemplateSerializer(CLUTCH_ESTIMATE, frame_id="rig1", spline_law="coulomb",
+    ser = TemplateSerializer(CLUTCH_ESTIMATE_TYPE, frame_id="rig1", spline_law="coulomb",
                              lamella_normal_force=np.zeros(13),
                              spline_friction_force=np.zeros(13))  # fmt: skip
     block = ser.serialize_stamped(stamps, cols)
     assert block.shape == (n, ser.size)
     for i in range(n):
-        msg = make_msg(CLUTCH_ESTIMATE, int(stamps[i]), frame_id="rig1", spline_law="coulomb",
+        msg = make_msg(CLUTCH_ESTIMATE_TYPE, int(stamps[i]), frame_id="rig1", spline_law="coulomb",
                        **{k: (v[i] if k != "overshoot" else bool(v[i])) for k, v in cols.items()})
-        assert bytes(store.serialize_cdr(msg, CLUTCH_ESTIMATE)) == block[i].tobytes(), i
+        assert bytes(store.serialize_cdr(msg, CLUTCH_ESTIMATE_TYPE)) == block[i].tobytes(), i
 
 
 def test_template_rejects_unknown_fields_and_wrong_shapes():
-    ser = TemplateSerializer(RIG_STATE, ff_voltages=np.zeros(8))
+    ser = TemplateSerializer(RIG_STATE_TYPE, ff_voltages=np.zeros(8))
     with pytest.raises(MessageFieldError, match="no numeric field 'pressure'"):
         ser.serialize(2, {"pressure": [1.0, 2.0]})
     with pytest.raises(MessageFieldError, match="do not fit 2 messages of 8"):
@@ -60,7 +60,7 @@ def test_write_columns_read_columns_round_trip(tmp_path, storage, compression):
     path = tmp_path / "cols"
     with BagWriter(path, storage=storage, compression=compression) as writer:
         topic = writer.add_topic("rig_state")
-        ser = TemplateSerializer(RIG_STATE, frame_id="rig", ff_voltages=np.zeros(8))
+        ser = TemplateSerializer(RIG_STATE_TYPE, frame_id="rig", ff_voltages=np.zeros(8))
         write_columns(writer, topic, ser, stamps, cols, bag_ns=stamps + 7)
     for fast in (True, False):
         rig = read_rig_states(path, fast=fast)

@@ -16,7 +16,7 @@ from clutch_ros.bag.errors import (
 )
 from clutch_ros.bag.reader import check_bag, open_bag
 from clutch_ros.bag.rig_states import read_rig_states
-from clutch_ros.bag.typestore import RIG_STATE, clutch_typestore, rig_state_msg
+from clutch_ros.bag.typestore import RIG_STATE_TYPE, clutch_typestore, rig_state_msg
 from clutch_ros.bag.writer import BagWriter
 
 from .conftest import write_sample_bag
@@ -131,12 +131,12 @@ def test_metadata_qos_disagreeing_with_storage(tmp_path, storage):
     path = tmp_path / "qos"
     write_sample_bag(path, storage)
 
-    def reliable(meta):
+    def best_effort(meta):  # the storage says reliable, as the can_bridge offers rig_state
         for topic in meta["topics_with_message_count"]:
             if topic["topic_metadata"]["name"] == "/rig_state":
-                topic["topic_metadata"]["offered_qos_profiles"][0]["reliability"] = "reliable"
+                topic["topic_metadata"]["offered_qos_profiles"][0]["reliability"] = "best_effort"
 
-    _edit_metadata(path, reliable)
+    _edit_metadata(path, best_effort)
     with Reader(path) as raw:
         conns = [c for c in raw.connections if c.topic == "/rig_state"]
         assert conns[0].msgcount == 50 and list(raw.messages(conns)) == []
@@ -175,7 +175,7 @@ def test_unknown_type(tmp_path):
     with open_bag(path) as bag:  # raw bytes are still available
         ((topic, stamp, data),) = list(bag.messages(raw=True))
     assert (topic, stamp, bytes(data)[4:]) == ("/foo", 1, (7).to_bytes(4, "little"))
-    with pytest.raises(BagError, match=f"expected one {RIG_STATE} topic, found none"):
+    with pytest.raises(BagError, match=f"expected one {RIG_STATE_TYPE} topic, found none"):
         read_rig_states(path)
 
 
@@ -184,7 +184,7 @@ def test_type_with_a_different_definition(tmp_path):
     path = tmp_path / "old"
     with BagWriter(path, store=store) as writer:
         writer.add_topic("rig_state")
-        writer.write("rig_state", 1, store.types[RIG_STATE](
+        writer.write("rig_state", 1, store.types[RIG_STATE_TYPE](
             header=clutch_typestore().types["std_msgs/msg/Header"](
                 stamp=clutch_typestore().types["builtin_interfaces/msg/Time"](sec=0, nanosec=1),
                 frame_id="",
@@ -199,7 +199,7 @@ def test_type_with_a_different_definition(tmp_path):
 
 def test_undecodable_message_data(tmp_path):
     path = tmp_path / "bad_msg"
-    good = bytes(clutch_typestore().serialize_cdr(rig_state_msg(1), RIG_STATE))
+    good = bytes(clutch_typestore().serialize_cdr(rig_state_msg(1), RIG_STATE_TYPE))
     with BagWriter(path) as writer:
         writer.add_topic("rig_state")
         writer.write_raw("rig_state", 1, good)

@@ -8,7 +8,7 @@ from clutch_ros.bag.columns import ColumnDecoder, CorruptMessageError, columns_s
 from clutch_ros.bag.errors import BagError
 from clutch_ros.bag.reader import open_bag
 from clutch_ros.bag.rig_states import read_rig_states
-from clutch_ros.bag.typestore import CLUTCH_ESTIMATE, RIG_STATE, rig_state_msg
+from clutch_ros.bag.typestore import CLUTCH_ESTIMATE_TYPE, RIG_STATE_TYPE, rig_state_msg
 from clutch_ros.bag.writer import BagWriter
 
 from .conftest import STAMP_NS, cdr, np_equal, reference_msg
@@ -51,11 +51,11 @@ def _assert_columns_match_messages(cols, msgs):
 
 def test_column_decoder_matches_rosbags_on_varied_layouts(store):
     msgs = [_varied(i) for i in range(200)]
-    raws = [cdr(m, RIG_STATE) for m in msgs]
-    decoder = ColumnDecoder(store, RIG_STATE)
+    raws = [cdr(m, RIG_STATE_TYPE) for m in msgs]
+    decoder = ColumnDecoder(store, RIG_STATE_TYPE)
     _assert_columns_match_messages(decoder.decode(raws), msgs)
-    _assert_columns_match_messages(columns_slow(store, RIG_STATE, raws), msgs)
-    same = [cdr(rig_state_msg(i, ff_voltages=[i, 2.0], actuating_pressure=i), RIG_STATE)
+    _assert_columns_match_messages(columns_slow(store, RIG_STATE_TYPE, raws), msgs)
+    same = [cdr(rig_state_msg(i, ff_voltages=[i, 2.0], actuating_pressure=i), RIG_STATE_TYPE)
             for i in range(10)]  # fmt: skip
     cols = decoder.decode(same)  # the uniform (strided) path
     assert np_equal(cols["actuating_pressure"], range(10))
@@ -64,15 +64,16 @@ def test_column_decoder_matches_rosbags_on_varied_layouts(store):
 
 
 def test_column_decoder_handles_every_clutch_type(store):
-    msgs = [reference_msg(CLUTCH_ESTIMATE, seed=i) for i in range(5)]
-    cols = ColumnDecoder(store, CLUTCH_ESTIMATE).decode([cdr(m, CLUTCH_ESTIMATE) for m in msgs])
+    msgs = [reference_msg(CLUTCH_ESTIMATE_TYPE, seed=i) for i in range(5)]
+    cols = ColumnDecoder(store, CLUTCH_ESTIMATE_TYPE).decode(
+        [cdr(m, CLUTCH_ESTIMATE_TYPE) for m in msgs])
     assert np_equal(cols["modelled_torque"], [m.modelled_torque for m in msgs])
     assert np_equal(cols["overshoot"], [m.overshoot for m in msgs])
 
 
 def test_column_decoder_rejects_truncated_and_big_endian(store):
-    decoder = ColumnDecoder(store, RIG_STATE)
-    good = cdr(_varied(5), RIG_STATE)
+    decoder = ColumnDecoder(store, RIG_STATE_TYPE)
+    good = cdr(_varied(5), RIG_STATE_TYPE)
     with pytest.raises(CorruptMessageError, match="message 1: truncated at"):
         decoder.decode([good, good[:-12], good])
     with pytest.raises(CorruptMessageError, match="message 0: not little-endian"):
@@ -90,7 +91,7 @@ def test_read_rig_states_equals_message_reader(tmp_path, storage):
         for i, msg in enumerate(msgs):
             writer.write("rig_state", STAMP_NS + i * 1_000_000 + 7, msg)
             if i % 100 == 0:
-                writer.write("clutch_estimate", STAMP_NS + i, reference_msg(CLUTCH_ESTIMATE))
+                writer.write("clutch_estimate", STAMP_NS + i, reference_msg(CLUTCH_ESTIMATE_TYPE))
     for fast in (True, False):
         arrays = read_rig_states(path, fast=fast, batch=5000)
         assert len(arrays) == n and arrays.topic == "/rig_state"
@@ -122,7 +123,7 @@ def test_read_rig_states_topic_choice(tmp_path):
     path = tmp_path / "two"
     with BagWriter(path) as writer:
         for topic in ("/rig1/rig_state", "/rig2/rig_state"):
-            writer.add_topic(topic, RIG_STATE)
+            writer.add_topic(topic, RIG_STATE_TYPE)
             writer.write(topic, 1, rig_state_msg(1, slip_speed=len(topic)))
         writer.add_topic("clutch_estimate")
     with pytest.raises(BagError, match="expected one clutch_msgs/msg/RigState topic"):
@@ -164,7 +165,7 @@ def test_mcap_written_by_the_mcap_library_reads_identically(tmp_path, store, com
 
     file = tmp_path / f"ext_{compression}.mcap"
     msgs = [_varied(i) for i in range(600)]
-    msgdef, _ = store.generate_msgdef(RIG_STATE, ros_version=2)
+    msgdef, _ = store.generate_msgdef(RIG_STATE_TYPE, ros_version=2)
     kind = (
         CompressionType.NONE
         if compression in ("none", "unchunked")
@@ -175,11 +176,11 @@ def test_mcap_written_by_the_mcap_library_reads_identically(tmp_path, store, com
             fh, chunk_size=4096, compression=kind, use_chunking=compression != "unchunked"
         )
         writer.start(profile="ros2", library="test")
-        schema = writer.register_schema(RIG_STATE, "ros2msg", msgdef.encode())
+        schema = writer.register_schema(RIG_STATE_TYPE, "ros2msg", msgdef.encode())
         channel = writer.register_channel("/rig_state", "cdr", schema, {})
         for i, msg in enumerate(msgs):
             stamp = STAMP_NS + i * 1_000_000
-            writer.add_message(channel, stamp, cdr(msg, RIG_STATE), stamp, sequence=i)
+            writer.add_message(channel, stamp, cdr(msg, RIG_STATE_TYPE), stamp, sequence=i)
         writer.finish()
     for fast in (True, False):
         arrays = read_rig_states(file, fast=fast)
@@ -195,7 +196,7 @@ def test_column_decoder_fixed_layout_shortcut_checks_every_length_field(store, m
     """
 
     def batch(msgs):
-        raws = [cdr(m, RIG_STATE) for m in msgs]
+        raws = [cdr(m, RIG_STATE_TYPE) for m in msgs]
         assert len({len(r) for r in raws}) == 1
         buf = np.frombuffer(b"".join(raws) + bytes(8), dtype=np.uint8)
         lengths = np.full(len(raws), len(raws[0]), dtype=np.int64)
@@ -208,12 +209,12 @@ def test_column_decoder_fixed_layout_shortcut_checks_every_length_field(store, m
 
     first = [msg(i, "rig", 8) for i in range(40)]
     other = [msg(i, "rig" + "y" * 8, 7) for i in range(40)]  # 8 bytes more, 8 bytes less
-    assert len(cdr(first[0], RIG_STATE)) == len(cdr(other[0], RIG_STATE))
+    assert len(cdr(first[0], RIG_STATE_TYPE)) == len(cdr(other[0], RIG_STATE_TYPE))
     walks = []
     run = columns._Walk.run
     monkeypatch.setattr(columns._Walk, "run", lambda self, steps: walks.append(1) or
                         run(self, steps))
-    decoder = ColumnDecoder(store, RIG_STATE)
+    decoder = ColumnDecoder(store, RIG_STATE_TYPE)
     expect = []
     for msgs, walked in ((first, True), (first, False), (other, True), (other, False),
                          (first, True), (other[:1] + first[1:], True), (first, False)):

@@ -20,6 +20,7 @@ import warnings
 import numpy as np
 import pytest
 
+from clutch_ros import interfaces
 from clutch_ros.bag.arrays import read_columns
 from clutch_ros.bag.reader import check_bag
 from clutch_ros.cli import main as clutch
@@ -32,13 +33,8 @@ from tests.nodes.rclpy_harness import Harness
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 PRESET = REPO / "params" / "flexiforce_8.yaml"
-FIELDS = (
-    "modelled_torque", "reference_torque", "measured_torque", "torque_accuracy",
-    "friction_coefficient", "lamella_normal_force", "spline_friction_force", "front_pressure",
-    "rear_pressure", "pressure_difference", "slip_speed_filtered", "actuating_pressure",
-    "lamella_temperature", "overshoot", "undershoot", "friction_scale", "friction_scale_std",
-    "spline_gain_scale", "adapting", "adaptation_frozen",
-)  # fmt: skip
+#: every numeric ClutchEstimate field (spline_correction and spline_gain_scale_std included)
+FIELDS = interfaces.estimate_fields(kinds=("float64", "float64[]", "bool"))
 
 
 def _node(name, params, ros_env, log_dir, extra=()):

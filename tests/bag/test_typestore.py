@@ -11,9 +11,9 @@ import pytest
 from clutch_ros.bag.errors import MessageFieldError, UnknownTypeError
 from clutch_ros.bag.typestore import (
     BASE_STORE,
-    CAN_FRAME,
+    CAN_FRAME_TYPE,
     CLUTCH_TYPES,
-    RIG_STATE,
+    RIG_STATE_TYPE,
     can_frame_msg,
     clutch_typestore,
     find_msg_dir,
@@ -55,7 +55,7 @@ def test_typestore_is_cached_and_follows_an_explicit_dir(tmp_path):
     (tmp_path / "RigState.msg").write_text("std_msgs/Header header\nfloat64 only_field\n")
     other = clutch_typestore(tmp_path)
     assert other is not clutch_typestore()
-    assert [n for n, _ in other.fielddefs[RIG_STATE][1]] == ["header", "only_field"]
+    assert [n for n, _ in other.fielddefs[RIG_STATE_TYPE][1]] == ["header", "only_field"]
 
 
 @pytest.mark.parametrize("typename", CLUTCH_TYPES)
@@ -144,7 +144,7 @@ def test_builders_fill_defaults_and_convert_plain_values():
     assert msg.wheel_speeds.shape == (0,) and msg.has_measured_torque is False
     frame = can_frame_msg(5, 0x123, b"\x01\x02")
     assert list(frame.data) == [1, 2, 0, 0, 0, 0, 0, 0] and frame.dlc == 2
-    assert cdr(frame, CAN_FRAME)  # serializes
+    assert cdr(frame, CAN_FRAME_TYPE)  # serializes
 
 
 def test_builders_reject_unknown_fields_and_bad_values():

@@ -10,11 +10,16 @@ from mcap_ros2.decoder import DecoderFactory
 
 from clutch_ros.bag.errors import BagError, BagExistsError, BagNotFoundError, UnknownTypeError
 from clutch_ros.bag.reader import check_bag, open_bag
-from clutch_ros.bag.typestore import RIG_STATE, rig_state_msg, stamp_to_ns, topic_name
+from clutch_ros.bag.typestore import RIG_STATE_TYPE, rig_state_msg, stamp_to_ns, topic_name
 from clutch_ros.bag.writer import BagWriter, write_rig_states
 from clutch_ros.errors import ConfigError
 
 from .conftest import STAMP_NS, cdr, write_sample_bag
+
+#: History depth each clutch topic's publisher offers (nodes/*.py), all reliable.
+OFFERED_DEPTH = {"/rig_state": 50, "/clutch_estimate": 200, "/torque_request": 200,
+                 "/pressure_command": 200, "/pump_request": 50, "/can_frames": 1000,
+                 "/diagnostics": 10}
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])
@@ -69,8 +74,10 @@ def test_metadata_is_what_ros2_bag_on_jazzy_and_kilted_reads(sample_mcap):
         assert md["serialization_format"] == "cdr"
         assert md["type_description_hash"].startswith("RIHS01_")
         (qos,) = md["offered_qos_profiles"]  # v9: a YAML list with policy names
-        expected = "best_effort" if name == "/rig_state" else "reliable"
-        assert qos["reliability"] == expected
+        # what the nodes' publishers offer (every one reliable, REP 2003; rig_state keep last
+        # 50 as the can_bridge offers it, not the sensor-data profile of its readers)
+        assert qos["reliability"] == "reliable"
+        assert qos["depth"] == OFFERED_DEPTH[name]
         assert qos["durability"] == "volatile" and qos["history"] == "keep_last"
         assert qos["liveliness"] == "automatic"
         assert qos["deadline"] == {"sec": 9223372036, "nsec": 854775807}
@@ -119,7 +126,8 @@ def test_sqlite3_storage_has_schema_metadata_and_qos(tmp_path):
         assert con.execute("SELECT schema_version FROM schema").fetchone() == (4,)
         assert con.execute("SELECT count(*) FROM metadata").fetchone() == (1,)
         rows = dict(con.execute("SELECT name, offered_qos_profiles FROM topics").fetchall())
-        assert yaml.safe_load(rows["/rig_state"])[0]["reliability"] == "best_effort"
+        assert yaml.safe_load(rows["/rig_state"])[0]["reliability"] == "reliable"
+        assert yaml.safe_load(rows["/rig_state"])[0]["depth"] == 50
         n = con.execute("SELECT count(*) FROM messages").fetchone()[0]
     finally:
         con.close()
@@ -186,8 +194,8 @@ def test_namespaced_topic_keeps_default_type_and_qos(tmp_path):
         writer.write(name, 5, rig_state_msg(5))
     with open_bag(path) as bag:
         (info,) = bag.topics.values()
-    assert info.topic == "/rig1/rig_state" and info.typename == RIG_STATE
-    assert info.qos[0].reliability.name == "BEST_EFFORT"
+    assert info.topic == "/rig1/rig_state" and info.typename == RIG_STATE_TYPE
+    assert info.qos[0].reliability.name == "RELIABLE" and info.qos[0].depth == 50
 
 
 def test_custom_data_is_stored(tmp_path):

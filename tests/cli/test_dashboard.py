@@ -35,6 +35,7 @@ SERVED = {
     "/torque_request": "clutch_msgs/msg/TorqueRequest",
     "/pressure_command": "clutch_msgs/msg/PressureCommand",
     "/pump_request": "clutch_msgs/msg/PressureCommand",
+    "/can_frames": "clutch_msgs/msg/CanFrame",  # every clutch topic (issue 25)
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from clutch_ros.bag.arrays import TemplateSerializer, write_columns
-from clutch_ros.bag.typestore import RIG_STATE, TORQUE_REQUEST
+from clutch_ros.bag.typestore import RIG_STATE_TYPE, TORQUE_REQUEST_TYPE
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.cli.main import main as clutch
 
@@ -23,17 +23,17 @@ N = 40_000
 T0 = 1_700_000_000 * 10**9  # [ns]
 
 
-def _write(path, typename=RIG_STATE):
+def _write(path, typename=RIG_STATE_TYPE):
     stamps = T0 + np.arange(N, dtype=np.int64) * 1_000_000
     with BagWriter(path) as writer:
         topic = writer.add_topic("/rig_state", typename)
-        if typename == RIG_STATE:
+        if typename == RIG_STATE_TYPE:
             cols = {"actuating_pressure": np.full(N, 20e5), "lamella_temperature": np.full(N, 40.0),
                     "slip_speed": np.full(N, 1.0), "measured_torque": np.full(N, 500.0),
                     "has_measured_torque": np.ones(N, dtype=bool)}
-            ser = TemplateSerializer(RIG_STATE, frame_id="rig", ff_voltages=np.zeros(8))
+            ser = TemplateSerializer(RIG_STATE_TYPE, frame_id="rig", ff_voltages=np.zeros(8))
         else:
-            cols, ser = {"torque": np.zeros(N)}, TemplateSerializer(TORQUE_REQUEST)
+            cols, ser = {"torque": np.zeros(N)}, TemplateSerializer(TORQUE_REQUEST_TYPE)
         write_columns(writer, topic, ser, stamps, cols)
     return stamps
 
@@ -101,7 +101,7 @@ def test_truncated_and_bit_flipped_bags_recover_every_intact_chunk(tmp_path, cap
 
 def test_unknown_type_on_rig_state_names_the_topic_option(tmp_path, capsys):
     bag = tmp_path / "foreign"
-    _write(bag, TORQUE_REQUEST)
+    _write(bag, TORQUE_REQUEST_TYPE)
     assert _replay(bag) == 2
     err = capsys.readouterr().err
     assert "--topic" in err and err.count("\n") == 1

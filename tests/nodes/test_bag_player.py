@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from clutch_ros.bag.arrays import TemplateSerializer, write_columns
-from clutch_ros.bag.typestore import TORQUE_REQUEST
+from clutch_ros.bag.typestore import TORQUE_REQUEST_TYPE
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.cli.processes import NodeProcess, ros_param_args
 from clutch_ros.offline.rig_runs import simulate_run, write_run
@@ -49,7 +49,7 @@ def bag(tmp_path_factory):
                       {k: v for k, v in run.columns.items() if k != "wheel_speeds"})  # fmt: skip
         req = writer.add_topic("/torque_request")
         stamps = run.stamp_ns[::10]
-        write_columns(writer, req, TemplateSerializer(TORQUE_REQUEST), stamps,
+        write_columns(writer, req, TemplateSerializer(TORQUE_REQUEST_TYPE), stamps,
                       {"torque": np.arange(len(stamps), dtype=float)})  # fmt: skip
     return path, run
 

@@ -24,9 +24,9 @@ import pytest
 
 from clutch_ros.bag.reader import BagReader
 from clutch_ros.bag.typestore import (
-    CLUTCH_ESTIMATE,
-    PRESSURE_COMMAND,
-    RIG_STATE,
+    CLUTCH_ESTIMATE_TYPE,
+    PRESSURE_COMMAND_TYPE,
+    RIG_STATE_TYPE,
     pressure_command_msg,
 )
 from clutch_ros.bag.writer import BagWriter
@@ -191,9 +191,9 @@ def _demo_like_bag(result, bag: Path, tmp_path: Path) -> None:
     write_estimates(estimates, result)
     bag.parent.mkdir(parents=True)
     with BagWriter(bag) as writer:
-        rig_topic = writer.add_topic("/rig_state", RIG_STATE)
-        est_topic = writer.add_topic("/clutch_estimate", CLUTCH_ESTIMATE)
-        cmd_topic = writer.add_topic("/pressure_command", PRESSURE_COMMAND)
+        rig_topic = writer.add_topic("/rig_state", RIG_STATE_TYPE)
+        est_topic = writer.add_topic("/clutch_estimate", CLUTCH_ESTIMATE_TYPE)
+        cmd_topic = writer.add_topic("/pressure_command", PRESSURE_COMMAND_TYPE)
         with BagReader(result.bag) as reader:
             for _, stamp, msg in reader.messages(["/rig_state"]):
                 writer.write(rig_topic, stamp, msg)
