@@ -58,8 +58,7 @@ __all__ = ["PUMP_RISE", "add_parser", "run"]
 #: ECU kicks when its 20 ms-smoothed request rises faster than 100 bar/s; a 90 bar/s ramp
 #: sent as a 10 ms staircase crosses that in its ripple (the rig's pump model: a 1.25 bar kick
 #: on a clean staircase, 1.78 bar with 0-15 ms of arrival jitter; 75 bar/s: none, 0.68 bar).
-#: Six full demos at 75 bar/s: worst overshoot 1.032-1.034 in five (one 1.060 at the first
-#: step, before any friction is learned); at 90 bar/s 1.033-1.061, two of seven above 1.05.
+#: The figures of both rates: benchmarks/RESULTS.md.
 PUMP_RISE = 75e5
 
 #: SCHED_FIFO priorities of the run's processes (1..99, higher preempts lower): the world

@@ -143,7 +143,9 @@ def frame_times(frames, db) -> dict[str, list[float]]:
     """Return the recorded bus times [s] of each DBC message (by name), in order."""
     times: dict[str, list[float]] = {}
     for frame in frames:
-        spec = db.lookup(frame.arbitration_id)
+        if frame.is_error_frame or frame.is_remote_frame:
+            continue
+        spec = db.lookup(frame.arbitration_id, frame.is_extended_id)
         if spec is not None:
             times.setdefault(spec.name, []).append(frame.timestamp)
     return times

@@ -243,7 +243,7 @@ def test_publish_pacer_paces_bus_time_and_a_clock_going_back_earns_nothing():
     # a new log starts at bus time 5 s: the step back neither earns nor costs tokens
     pacer = PublishPacer(100.0, speed, frozenset({speed}))
     assert pacer.on_frame(speed, 10.0) and pacer.on_frame(speed, 10.5)  # one token left
-    assert pacer.on_frame(speed, 5.0)  # (was -500 tokens: silence for 5 s)
+    assert pacer.on_frame(speed, 5.0)  # charged as elapsed time: -500 tokens, 5 s silent
     assert not pacer.on_frame(speed, 5.0) and pacer.on_frame(speed, 5.5)
 
 

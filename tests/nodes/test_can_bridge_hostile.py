@@ -94,7 +94,8 @@ def test_one_malformed_datagram_per_second_keeps_the_link_and_rig_state(tmp_path
                ("not_msgpack", "invalid_frame", "not_a_frame")) == sent
     assert 2 not in levels  # never an ERROR (the link never went down)
     assert clean > 0.9  # the baseline itself: (nearly) every sample the bus allowed
-    assert hostile >= 0.9 * clean, (hostile, clean)  # was 29 Hz against 200 before the fix
+    # a link torn down by each bad datagram loses most samples (it kept 29 of 200 per s)
+    assert hostile >= 0.9 * clean, (hostile, clean)
     log = procs[1].log_path.read_text()
     assert log.count("malformed") <= 2, log  # rate-limited, not one line per datagram
 
