@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 __all__ = [
     "BEST_EFFORT",
@@ -253,7 +253,7 @@ def estimate_fields(source: str | None = None, kinds: tuple[str, ...] | None = N
 NS_PER_S = 1_000_000_000
 
 
-def stamp_to_s(sec, nanosec):
+def stamp_to_s(sec: Any, nanosec: Any) -> Any:
     """Return a stamp ``(sec, nanosec)`` in seconds [s]: ``sec + nanosec * 1e-9``.
 
     The one formula of the node and the replay (works element-wise on numpy arrays of

@@ -213,7 +213,8 @@ def read_columns(
 def _strings(store: Typestore, typename: str, msg: Any, prefix: str = "") -> dict[str, str]:
 
     out: dict[str, str] = {}
-    for name, (kind, args) in store.fielddefs[typename][1]:
+    fields: Any = store.fielddefs[typename][1]  # rosbags' field-type union, by kind below
+    for name, (kind, args) in fields:
         if kind == Nodetype.NAME:
             out.update(_strings(store, args, getattr(msg, name), f"{prefix}{name}."))
         elif kind == Nodetype.BASE and args[0] == "string":

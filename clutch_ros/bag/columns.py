@@ -39,7 +39,8 @@ _PRIM = {
 def _steps(store: Typestore, typename: str, prefix: str = "") -> list[tuple]:
     """Flatten the CDR layout of ``typename`` into decoding steps."""
     out: list[tuple] = []
-    for name, (kind, args) in store.fielddefs[typename][1]:
+    fields: Any = store.fielddefs[typename][1]  # rosbags' field-type union, by kind below
+    for name, (kind, args) in fields:
         path = f"{prefix}{name}"
         if kind == Nodetype.NAME:
             out.extend(_steps(store, args, f"{path}."))
@@ -179,7 +180,8 @@ class _Plan:
     def __init__(self, length: int, walk: _Walk, steps: list[tuple]):
         self.length = length
         self.counts = walk.counts  # (payload offset of a length field, its value)
-        self.fields = []  # (name, payload offset, primitive, width or None for a scalar)
+        # (name, payload offset, primitive, width or None for a scalar)
+        self.fields: list[tuple[str, int, str, int | None]] = []
         for step in steps:
             if step[0] == "prim":
                 self.fields.append((step[1], int(walk.offsets[step[1]][0]), step[2], None))
@@ -398,7 +400,8 @@ def columns_slow(store: Typestore, typename: str, raws: Sequence[bytes]) -> dict
     cols: dict[str, Any] = {}
 
     def walk(typ: str, getter: Any, prefix: str) -> None:
-        for name, (kind, args) in store.fielddefs[typ][1]:
+        fields: Any = store.fielddefs[typ][1]  # rosbags' field-type union, by kind below
+        for name, (kind, args) in fields:
             path = f"{prefix}{name}"
 
             def get(m: Any, _name: str = name) -> Any:

@@ -63,7 +63,7 @@ class TopicInfo(NamedTuple):
 
     topic: str
     typename: str
-    count: int
+    count: int  # type: ignore[assignment]  # the field shadows tuple.count (kept: public API)
     qos: list[Qos]
 
 

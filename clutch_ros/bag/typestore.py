@@ -230,6 +230,7 @@ def _coerce(store: Typestore, typename: str, field: str, desc: tuple, value: Any
         sub, size = args
         if sub[0] == Nodetype.BASE and sub[1][0] in _DTYPES:
             dtype = _DTYPES[sub[1][0]]
+            arr: np.ndarray
             if isinstance(value, bytes | bytearray):
                 arr = np.frombuffer(bytes(value), dtype=np.uint8).astype(dtype)
             else:

@@ -11,6 +11,8 @@ receives from reliable and best-effort publishers alike.
 
 from __future__ import annotations
 
+from typing import Any
+
 from rclpy.duration import Duration
 from rclpy.qos import (
     DurabilityPolicy,
@@ -37,7 +39,7 @@ def profile(spec: QosSpec) -> QoSProfile:
     Durations left infinite and ``automatic`` liveliness keep rclpy's defaults, so
     ``profile(interfaces.SENSOR_DATA) == qos_profile_sensor_data``.
     """
-    kwargs = {}
+    kwargs: dict[str, Any] = {}
     for key in ("deadline", "lifespan", "liveliness_lease_duration"):
         ns = getattr(spec, "liveliness_lease_ns" if key.startswith("liveliness") else
                      f"{key}_ns")

@@ -57,6 +57,7 @@ import signal
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import SetParametersResult
@@ -258,7 +259,8 @@ class RecorderNode(Node):
                            namespace=self.get_namespace()).open()
         for topic, typename in self._types.items():
             writer.add_topic(topic, typename, qos=self._qos.get(topic))
-        self._part_bytes, self._part_start = 0, None
+        self._part_bytes = 0
+        self._part_start: int | None = None  # [ns] first stamp of the open part
         return writer
 
     def _rotate_if_due(self, stamp_ns: int) -> None:
@@ -323,7 +325,7 @@ class RecorderNode(Node):
 
     def _diagnose(self):
         written = self.written
-        values = {}
+        values: dict[str, Any] = {}
         for topic, stats in self.loss.topics.items():
             values[f"received{topic}"] = stats.received
             values[f"written{topic}"] = written.get(topic, 0)
