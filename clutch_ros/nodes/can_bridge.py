@@ -106,6 +106,9 @@ class CanBridgeNode(LifecycleNode):
     def __init__(self):
         super().__init__(NAME)
         cfg = self._cfg = declare_with_renames(self, PARAMS, RENAMED)
+        reason = check_change(cfg, None)  # the start values, as a later change would be
+        if reason is not None:
+            raise ClutchError(reason)
         self._send_warn, self._lock, self._failure = LogThrottle(5.0), threading.Lock(), None
         self._command = self._rig_pub = self._cmd_pub = self._raw_pub = self._notifier = None
         self._sub = self._pump_timer = self._flush_timer = None

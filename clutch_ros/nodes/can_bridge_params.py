@@ -50,8 +50,9 @@ PARAMS = [
         "services); read-only: acts at start only"),
     _ro("can.interface", "udp_multicast", "python-can interface (socketcan, vector, pcan, "
         "kvaser, udp_multicast, virtual, ...)" + _BUS),
-    _ro("can.channel", "239.74.163.2", "interface channel (can0, 0, PCAN_USBBUS1, a "
-        "multicast group ...)" + _BUS),
+    ParamSpec("can.channel", "239.74.163.2", "interface channel: a name (can0, PCAN_USBBUS1, a "
+              "multicast group ...) or a number (Vector, Kvaser: 0)" + _BUS, read_only=True,
+              dynamic_typing=True),
     _ro("can.port", 43113, "UDP port (udp_multicast only)" + _BUS, "", 1, 65535),
     _ro("can.bitrate", 0, "bit rate; 0 keeps the interface default" + _BUS, "bit/s", 0,
         20_000_000),
@@ -121,6 +122,9 @@ def check_change(values: Mapping[str, Any], dbc_pump_max: float | None) -> str |
 
     ``dbc_pump_max`` [Pa]: the DBC maximum of the pump request (None before configure).
     """
+    channel = values.get("can.channel", "")
+    if isinstance(channel, bool) or not isinstance(channel, str | int):
+        return f"can.channel must be a name or a number, got {channel!r}"
     if values["pump.watchdog_timeout"] <= values["pump.period"]:
         return (f"pump.watchdog_timeout ({values['pump.watchdog_timeout']} s) must exceed "
                 f"pump.period ({values['pump.period']} s): the watchdog would trip between "

@@ -32,6 +32,10 @@ class ParamSpec:
     maximum: float | None = None
     choices: tuple[str, ...] = ()
     read_only: bool = False
+    #: the value may be of another type than the default's: a CAN channel is a name
+    #: (``can0``) or a number (Vector, Kvaser: ``0``), and ROS reads ``-p can.channel:=0`` and
+    #: a launch file's ``value="0"`` as an integer
+    dynamic_typing: bool = False
 
     def describe(self) -> str:
         """Return a one-line human description with unit and range."""
@@ -56,7 +60,8 @@ def declare_params(node, specs: Iterable[ParamSpec], overrides: dict | None = No
     """Declare ``specs`` on ``node`` with descriptors and ranges; return {name: value}."""
     values = {}
     for spec in specs:
-        descriptor = ParameterDescriptor(description=spec.describe(), read_only=spec.read_only)
+        descriptor = ParameterDescriptor(description=spec.describe(), read_only=spec.read_only,
+                                         dynamic_typing=spec.dynamic_typing)
         default = (overrides or {}).get(spec.name, spec.default)
         if isinstance(spec.default, bool):
             pass

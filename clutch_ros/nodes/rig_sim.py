@@ -44,7 +44,8 @@ PARAMS = [
     ParamSpec("can.interface", "udp_multicast",
               f"python-can interface of the simulated rig; {_AT_START}", read_only=True),
     ParamSpec("can.channel", "239.74.163.2",
-              f"interface channel (multicast group ...); {_AT_START}", read_only=True),
+              f"interface channel: a name (multicast group, can0 ...) or a number (Vector: 0); "
+              f"{_AT_START}", read_only=True, dynamic_typing=True),
     ParamSpec("can.port", 43113, f"UDP port (udp_multicast only); {_AT_START}", "", 1, 65535,
               read_only=True),
     ParamSpec("rig.params_file", "rig_truth",

@@ -512,5 +512,27 @@ def test_bad_settings_fail_at_start_with_one_line(tmp_path, ros_env):
         "interface": (["-p", "can.interface:=nonsense"], "unknown CAN interface"),
         "filter": (["-p", "can.filters:=['0x100']"], "CAN filter"),
         "range": (["-p", "pump.max_pressure:=1e9"], "pump.max_pressure"),
+        "channel": (["-p", "can.channel:=1.5"], "can.channel must be a name or a number"),
+        "watchdog": (["-p", "pump.watchdog_timeout:=0.005"], "must exceed pump.period"),
     }
     assert_bad_settings_fail_at_start("can_bridge", cases, ros_env)
+
+
+def test_a_numbered_channel_works_as_the_launch_files_pass_it(ros_env):
+    """``-p can.channel:=0`` (and launch XML ``value="0"``) reach ROS as an integer: accepted.
+
+    Vector and Kvaser channels are numbers; the bridge opens python-can's virtual bus on
+    channel 0 and reports it as ``virtual:0`` on /diagnostics.
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from tests.nodes.rclpy_harness import node_process
+
+    with node_process("can_bridge", ros_env, "-p", "can.interface:=virtual",
+                      "-p", "can.channel:=0") as proc, Harness("channel_test") as h:
+        diags = h.collect(DiagnosticArray, "/diagnostics", 50)
+        h.spin_until(lambda: _diag(diags, "/can_bridge").get("link_state") == "up", 60.0,
+                     "the bridge's link on virtual channel 0")
+        hardware = {s.hardware_id for a in diags for s in a.status if s.name == "/can_bridge"}
+        assert proc.poll() is None
+    assert hardware == {"simulated rig (virtual:0)"}
