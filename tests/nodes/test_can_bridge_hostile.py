@@ -201,9 +201,16 @@ def test_foreign_stale_future_commands_refused_and_zero_on_sigterm(tmp_path):
                         publisher.publish(make())
                     h.spin_for(0.02)
 
-            # A: the controller (ctl) at 10 bar and a stray node at 30 bar
-            publish_for(1.5, (pub, lambda: _command(h.node, 10e5)),
-                        (stray_pub, lambda: _command(stray, 30e5)))
+            # A: the controller (ctl) at 10 bar and a stray node at 30 bar, from the first
+            # frame that applies ctl's command on (the bridge's best-effort reader may match
+            # our writer later than our writer matched it: what comes before is lost)
+            both = ((pub, lambda: _command(h.node, 10e5)),
+                    (stray_pub, lambda: _command(stray, 30e5)))
+            end = time.monotonic() + 30.0
+            while not any(abs(p - 10e5) < 1 for _, p in _requests(rec)):
+                assert time.monotonic() < end, "no command of ctl applied within 30 s"
+                publish_for(0.1, *both)
+            publish_for(1.5, *both)
             t_good = time.time()
             h.spin_until(lambda: "2 publishers" in _status(diags).message, 10.0,
                          "the ERROR naming two publishers")
@@ -240,7 +247,10 @@ def test_foreign_stale_future_commands_refused_and_zero_on_sigterm(tmp_path):
           f"admitted command, {sum(p > 0 for t, p in phase_b if t > last_good + zero_at)} "
           f"non-zero frames after that\nSIGTERM: last PumpRequest {last_p / 1e5:.3f} bar, "
           f"{last_t - t_signal:.3f} s after the signal; exit code {bridge._proc.returncode}")
-    assert not any(abs(p - 30e5) < 1 for p in phase_a)
+    # the stray's 30 bar never reached the pump, not even as part of a ramp; ctl's did
+    # (how many frames depends on how steadily this process could publish: a pause of more
+    # than the watchdog gives 0 bar frames, legitimately)
+    assert all(p <= 10e5 + 1 for p in phase_a)
     assert sum(abs(p - 10e5) < 1 for p in phase_a) > 50
     assert _level(error) == 2 and "/ctl" in error.message and "/stray" in error.message
     assert int(_diag_value(error, "pump_refused_source")) > 10
