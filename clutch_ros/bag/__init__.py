@@ -10,8 +10,9 @@ Modules:
     arrays         ``TemplateSerializer`` / ``write_columns`` (fast fixed-layout writing),
                    ``read_columns`` (any supported type as numpy columns)
     diagnose       which file is at fault; metadata.yaml vs storage comparison
-    recover        ``recover_bag`` / ``recover_mcap``: the intact chunks of a damaged MCAP
-                   bag, and what was skipped (``clutch replay --recover``)
+    chunked        MCAP chunks closed on time, with CRC, flushed and fsync'd (crash safety)
+    recover        ``recover_bag`` / ``recover_mcap``: every message of a damaged MCAP bag
+                   up to the damage, and what was lost (``clutch replay --recover``)
     csv_import     ``import_csv`` (rig CSV -> RigState bag)
     channel_map    channel maps: which MDF4 channel or CSV column feeds each RigState field
     mapped_import  MDF4 (asammdf) and foreign CSV files through a channel map

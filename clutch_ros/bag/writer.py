@@ -15,6 +15,9 @@ on Jazzy and Kilted, from bags recorded by ``ros2 bag record``:
 - MCAP: ``ros2`` profile, ``ros2msg`` schemas, per-channel ``offered_qos_profiles`` metadata,
   chunk and message indexes, a Statistics record (total and per-channel message counts, time
   range) and the ``rosbag2`` metadata record, all written by rosbags.
+- MCAP chunks carry the CRC-32 of their records; with ``chunk_interval`` (the recorder) each
+  is closed on time and flushed, and with ``sync`` fsync'd, so a crash loses at most the
+  open chunk (:mod:`clutch_ros.bag.chunked`; ``clutch replay --recover`` reads the rest).
 - sqlite3: schema version 4 with ``message_definitions`` and a ``metadata`` table.
 - Optional zstd chunk compression for MCAP (``compression="zstd"``, what ``ros2 bag record
   --storage-preset-profile zstd_fast`` writes): metadata.yaml keeps ``compression_mode: ''``
@@ -46,9 +49,10 @@ from rosbags.interfaces import (
     QosReliability,
     QosTime,
 )
-from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer, WriterError
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, WriterError
 
 from clutch_ros import interfaces
+from clutch_ros.bag.chunked import ChunkedMcapWriter, ChunkedWriter, ChunkPolicy
 from clutch_ros.bag.errors import BagError, BagExistsError, MessageFieldError, UnknownTypeError
 from clutch_ros.bag.reader import check_bag
 from clutch_ros.bag.typestore import (
@@ -159,6 +163,10 @@ class BagWriter:
         verify: on close, reopen the bag and check the declared and stored counts.
         compression: ``"none"`` (default) or ``"zstd"``: zstd-compressed MCAP chunks (about
             half the size for rig data; MCAP only).
+        chunk_interval: close each MCAP chunk once its first message is this old [s] (and
+            flush it to the operating system), so a crash loses at most that much; None
+            (default): chunks of 1 MiB of records (:mod:`clutch_ros.bag.chunked`).
+        sync: fsync the MCAP file after each chunk (a power cut loses only the open chunk).
 
     Raises:
         BagExistsError: ``path`` exists.
@@ -177,6 +185,8 @@ class BagWriter:
         delete_on_error: bool = False,
         verify: bool = True,
         compression: str = "none",
+        chunk_interval: float | None = None,
+        sync: bool = False,
     ):
         self.path = Path(path)
         self.storage = str(storage).lower()
@@ -188,12 +198,15 @@ class BagWriter:
             )
         if self.compression != "none" and self._plugin != StoragePlugin.MCAP:
             raise ConfigError(f"{self.compression} compression needs the mcap storage")
+        if chunk_interval is not None and not chunk_interval > 0:
+            raise ConfigError(f"chunk_interval must be > 0 s, got {chunk_interval!r}")
+        self.chunking = ChunkPolicy(chunk_interval, bool(sync))
         self.store = store or clutch_typestore()
         self.namespace = namespace
         self.delete_on_error = delete_on_error
         self.verify = verify
         self._custom = {str(k): str(v) for k, v in (custom_data or {}).items()}
-        self._writer: Writer | None = None
+        self._writer: ChunkedWriter | None = None
         self._conns: dict[str, Any] = {}
         self._types: dict[str, str] = {}
         #: messages accepted per topic (absolute name) [messages].
@@ -213,7 +226,8 @@ class BagWriter:
             return self
         if self.path.exists():
             raise BagExistsError(self.path, "output exists already; bags are never overwritten")
-        writer = Writer(self.path, version=Writer.VERSION_LATEST, storage_plugin=self._plugin)
+        writer = ChunkedWriter(self.path, version=ChunkedWriter.VERSION_LATEST,
+                               storage_plugin=self._plugin, policy=self.chunking)
         if self.compression == "zstd":
             writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         for key, value in self._custom.items():
@@ -226,6 +240,15 @@ class BagWriter:
             raise BagError(self.path, f"cannot create bag: {err.strerror or err}") from err
         self._writer = writer
         return self
+
+    def close_chunk_if_due(self, ahead: float = 0.0) -> bool:
+        """Close the open MCAP chunk if ``chunk_interval`` is up within ``ahead`` [s].
+
+        Call it from a timer every ``ahead`` seconds: chunks then close on time however
+        quiet the topics are. Returns True when a chunk was closed (False for sqlite3).
+        """
+        storage = self._writer.storage if self._writer is not None else None
+        return isinstance(storage, ChunkedMcapWriter) and storage.close_if_due(ahead)
 
     def __enter__(self) -> BagWriter:
         return self.open()

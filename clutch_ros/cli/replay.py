@@ -67,8 +67,9 @@ def add_parser(sub) -> None:
     p.add_argument("--topic", help="RigState topic to replay (default: the bag's only "
                    "RigState topic)")
     p.add_argument("--recover", action="store_true",
-                   help="damaged MCAP bags: replay every intact chunk and report what was "
-                        "skipped (messages, time ranges) under 'recovery'")
+                   help="damaged MCAP bags (cut by a crash, a flipped bit): replay every "
+                        "message up to each damage and report what was lost (messages, time "
+                        "ranges) under 'recovery'")
     p.add_argument("--no-stream", action="store_true",
                    help="read each bag whole before estimating it (default: estimate in a "
                         "second thread while the bag is read, when a second core is free; "
@@ -189,8 +190,9 @@ def _say_recovery(rep: dict) -> None:
     """One stderr line per skipped region of a recovered bag, and the missing counts."""
     for s in rep["skipped"]:
         span = "" if s["start_s"] is None else f", messages {s['start_s']:.3f}..{s['end_s']:.3f} s"
-        count = "" if s["messages"] is None else f", {s['messages']} messages"
-        sys.stderr.write(f"clutch replay: {rep['bag']}: skipped {s['bytes']} bytes at offset "
+        count = "" if s["messages"] is None else f", {s['messages']} messages lost"
+        count += f", {s['kept']} kept" if s.get("kept") else ""
+        sys.stderr.write(f"clutch replay: {rep['bag']}: damage in {s['bytes']} bytes at offset "
                          f"{s['offset']} ({s['reason']}{count}{span})\n")
     if rep["missing"]:
         sys.stderr.write(f"clutch replay: {rep['bag']}: recovered {rep['recovered']}, missing "

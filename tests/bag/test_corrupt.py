@@ -74,7 +74,11 @@ def test_unparseable_metadata(tmp_path):
 
 
 def test_corrupt_record_inside_a_chunk_is_not_silently_dropped(tmp_path):
-    """Rosbags skips the rest of a chunk whose record length overruns it, yielding nothing."""
+    """Rosbags skips the rest of a chunk whose record length overruns it, yielding nothing.
+
+    That happens to a chunk without CRC (rosbags writes 0, "not computed"); the CRC that
+    BagWriter stores (bag/chunked.py) makes rosbags itself refuse the damaged chunk.
+    """
     path = tmp_path / "chunk"
     write_sample_bag(path)
     file = path / "chunk.mcap"
@@ -82,6 +86,9 @@ def test_corrupt_record_inside_a_chunk_is_not_silently_dropped(tmp_path):
     chunk = data.index(b"\x06", 8)  # first chunk record after magic and header
     first_record = chunk + 9 + 28 + 4 + 8  # chunk fields, empty compression string, size
     data[first_record + 1 : first_record + 9] = (10**6).to_bytes(8, "little")
+    with_crc = bytes(data)
+    assert data[chunk + 33 : chunk + 37] != bytes(4)
+    data[chunk + 33 : chunk + 37] = bytes(4)  # as rosbags writes it: no CRC
     file.write_bytes(bytes(data))
     with Reader(path) as raw:
         assert list(raw.messages()) == []  # the silent failure this layer guards against
@@ -89,6 +96,9 @@ def test_corrupt_record_inside_a_chunk_is_not_silently_dropped(tmp_path):
         _read_all(path)
     with pytest.raises(BagCorruptError, match=r"chunk\.mcap: cannot read messages"):
         read_rig_states(path)
+    file.write_bytes(with_crc)
+    with pytest.raises(BagCorruptError, match=r"chunk\.mcap"):
+        _read_all(path)
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])

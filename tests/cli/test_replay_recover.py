@@ -1,10 +1,11 @@
-"""``clutch replay --recover``: every intact chunk of a truncated or bit-flipped MCAP is replayed.
+"""``clutch replay --recover``: every message up to the damage of a cut or bit-flipped MCAP.
 
 The bag: 40,000 RigState messages (1 kHz, stamps i ms after T0) in several MCAP chunks. The
 test finds the chunks itself (a plain MCAP record walk) to know the truth: which messages a
 damaged chunk held and its time range. Without ``--recover`` the damaged bag is refused as a
-whole; with it, exactly the messages outside the damage are replayed and the report names the
-skipped region (offset, message count, time range) and the missing count. An unknown type on
+whole; with it, exactly the messages before each damage are replayed (a chunk cut by the end
+of the file gives its whole records before the cut) and the report names the damaged region
+(offset, messages lost and kept, time range) and the missing count. An unknown type on
 /rig_state gives a hint naming ``--topic``, an option replay has.
 """
 
@@ -83,20 +84,37 @@ def test_truncated_and_bit_flipped_bags_recover_every_intact_chunk(tmp_path, cap
     assert rec["missing"] == {"/rig_state": lost} and rec["recovered"] == {"/rig_state": N - lost}
     (skip,) = rec["skipped"]
     assert skip["offset"] == off and skip["bytes"] == 9 + size
+    assert (skip["kept"], skip["messages"]) == (0, lost)  # the flip is in its first record
     assert (skip["start_s"], skip["end_s"]) == (start_ns * 1e-9, end_ns * 1e-9)
     assert "damaged chunk" in skip["reason"] and f"offset {off}" in out.err
 
-    # truncated in the middle of chunk 3: chunks 0..2 intact
-    off3 = chunks[3][0]
-    file.write_bytes(pristine[:off3 + chunks[3][1] // 2])
+    # truncated in the middle of chunk 3: chunks 0..2 intact, chunk 3's first part readable
+    off3, size3, start3, end3 = chunks[3]
+    cut = off3 + size3 // 2
+    file.write_bytes(pristine[:cut])
     assert _replay(bag, "--recover") == 0
     (res,) = json.loads(capsys.readouterr().out)
-    kept = int(np.count_nonzero(stamps < chunks[3][2]))
+    head = off3 + 9 + 32 + struct.unpack_from("<I", pristine, off3 + 9 + 28)[0] + 8
+    in_part = _whole_messages(pristine[head:cut])  # chunk 3's message records before the cut
+    assert 0 < in_part < np.count_nonzero((stamps >= start3) & (stamps <= end3))
+    kept = int(np.count_nonzero(stamps < start3)) + in_part
     assert res["samples"] == kept
     assert res["recovery"]["missing"] == {"/rig_state": N - kept}
     skip = res["recovery"]["skipped"][0]
-    assert skip["offset"] == off3 and skip["reason"] == "truncated record"
-    assert skip["start_s"] == chunks[3][2] * 1e-9
+    assert skip["offset"] == off3 and skip["reason"].startswith("truncated chunk")
+    assert skip["start_s"] == start3 * 1e-9 and skip["kept"] == in_part
+
+
+def _whole_messages(records: bytes) -> int:
+    """Message records lying wholly in ``records`` (uncompressed chunk records, a plain walk)."""
+    pos = count = 0
+    while pos + 9 <= len(records):
+        op, size = struct.unpack_from("<BQ", records, pos)
+        if pos + 9 + size > len(records):
+            break
+        count += op == 0x05
+        pos += 9 + size
+    return count
 
 
 def test_unknown_type_on_rig_state_names_the_topic_option(tmp_path, capsys):
