@@ -27,26 +27,35 @@ to the bag; DDS discovery does not carry the history and depth, so those (and ev
 no publisher is known yet) come from the topic's publisher profile in
 :data:`clutch_ros.interfaces.TOPICS`. ``ros2 bag play`` offers them again.
 
+Crash safety (MCAP): the open chunk is closed before its first message is
+``recorder.chunk_interval`` old (1 s; checked on every message and every tenth of it), written
+with its CRC and message index, flushed and (``recorder.fsync``) fsync'd
+(:mod:`clutch_ros.bag.chunked`). A recorder killed (SIGKILL, power cut) leaves a file without
+summary whose messages older than that are all on disk; ``clutch replay --recover`` reads it.
+
+Shutdown: on SIGINT or SIGTERM the node stops its timers (its own ``/diagnostics`` too) and
+drains what DDS still queues for it, taking from its subscriptions directly (no executor),
+until none had anything for ``recorder.drain_quiet`` (0.2 s) or ``recorder.drain_timeout``
+(1 s) passed, however much the other nodes still publish; a second signal ends the drain at
+once. Whatever is still queued then is taken and counted, not written
+(``unwritten_at_shutdown``, and in the bag's ``clutch_ros.dropped``), and the bag is closed:
+complete (summary, metadata.yaml) well within 3 s of the signal, before ``ros2 launch``
+escalates to SIGTERM (5 s). The exit code is 0 for either signal.
+
 Loss accounting (:class:`clutch_ros.nodes.loss_tracker.LossTracker`): every sample carries its
 publisher's DDS sequence number, so a gap is counted exactly, per topic, as ``dropped`` and
 stored in the bag (``custom_data`` ``clutch_ros.dropped``); samples a publisher sent before the
-first one seen here are ``missed_at_start``. The tail of a burst: on SIGINT/SIGTERM the node
-first drains what DDS still holds for it (spinning until nothing arrived for
-``recorder.drain_quiet``, default 3.5 s, or ``recorder.drain_timeout`` passed) and only then
-closes the bag, so messages queued at shutdown are written, not silently lost. The quiet time
-is longer than the 3 s heartbeat period of a Fast DDS reliable writer: a tail lost in
-transport is announced by the writer's next heartbeat and repaired (or, when a KEEP_LAST
-writer no longer holds it, shown as a sequence gap and counted) before the bag is closed.
-(The tail losses once seen here, 90-220 of a 20,000-message burst neither written nor
-counted, came from a reliable topic subscribed best effort because its publisher was
-discovered late; topics are therefore subscribed only once a publisher is known.)
-Counts (received, written,
-dropped) are on ``/diagnostics`` (WARN once anything was dropped) and, on shutdown, in one log
-line ``recorder summary: {json}`` and in the bags' ``custom_data``. Exact means: with
-reliable publishers every sample is either written or counted (a KEEP_LAST publisher's
-overwritten samples show as gaps; the tail arrives by the protocol). A best-effort publisher's
-samples lost in transport *after* the last one received are invisible to any subscriber; such
-topics are marked ``best_effort`` in the summary.
+first one seen here are ``missed_at_start``. (Tail losses once seen here, 90-220 of a
+20,000-message burst neither written nor counted, came from a reliable topic subscribed best
+effort because its publisher was discovered late; topics are therefore subscribed only once a
+publisher is known.) Counts (received, written, dropped) are on ``/diagnostics`` (WARN once
+anything was dropped) and, on shutdown, in one log line ``recorder summary: {json}`` and in
+the bags' ``custom_data``. Exact means: with reliable publishers every sample taken is either
+written or counted (a KEEP_LAST publisher's overwritten samples show as gaps). Samples lost
+in transport *after* the last one received (a best-effort publisher's, or a reliable tail
+whose repair, on the writer's next heartbeat up to 3 s later with Fast DDS, comes after the
+drain) are invisible to the recorder; a drain as long as ``drain_quiet`` 3.5 s waits for that
+repair. Best-effort topics are marked ``best_effort`` in the summary.
 """
 
 from __future__ import annotations
@@ -70,6 +79,7 @@ from clutch_ros import interfaces
 from clutch_ros.bag.writer import BagWriter, qos_of
 from clutch_ros.errors import ClutchError
 from clutch_ros.nodes.diagnostics import Diagnostics
+from clutch_ros.nodes.drain import drain, take
 from clutch_ros.nodes.loss_tracker import LossTracker, format_counts
 from clutch_ros.nodes.parameters import (
     HARDWARE_ID_PARAM,
@@ -84,6 +94,8 @@ from clutch_ros.nodes.runner import make_executor, start_realtime
 
 NAME = "recorder"
 RESOLVE_PERIOD = 0.25  # [s] how often topics without a publisher yet are looked up
+CHUNK_CHECKS = 10  # chunk-interval checks per recorder.chunk_interval, besides every message
+DISCARD_LIMIT = 0.2  # [s] at most this long spent counting what is queued after the drain
 #: clutch topic -> its ROS type "pkg/msg/Name" (:data:`clutch_ros.interfaces.TOPICS`)
 DEFAULT_TOPICS = {t.name: t.typename for t in interfaces.TOPICS}
 PARAMS = [
@@ -107,12 +119,18 @@ PARAMS = [
               "many message bytes; 0: no size split; live", "B", 0, 2**62),
     ParamSpec("recorder.split_duration", 0.0, "start a new part when the current one spans "
               "this long (receive time); 0: no time split; live", "s", 0.0, 1e7),
-    ParamSpec("recorder.drain_quiet", 3.5, "at shutdown, keep taking queued messages until "
-              "none arrived for this long (longer than the 3 s heartbeat period of a Fast DDS "
-              "reliable writer, which repairs a lost tail); live", "s", 0.0, 60.0),
-    ParamSpec("recorder.drain_timeout", 10.0, "at shutdown, stop draining after this long; "
-              "live",
-              "s", 0.0, 600.0),
+    ParamSpec("recorder.chunk_interval", 1.0, "close, write and flush the open MCAP chunk "
+              "before its first message is this old: a crash loses at most this much; "
+              "read-only: the bag is opened at start", "s", 0.05, 60.0, read_only=True),
+    ParamSpec("recorder.fsync", True, "fsync each chunk as it is written (a power cut, not "
+              "only a crash of the recorder, loses at most recorder.chunk_interval); "
+              "read-only: the bag is opened at start", read_only=True),
+    ParamSpec("recorder.drain_quiet", 0.2, "at shutdown, keep taking queued messages until "
+              "none arrived for this long (3.5 s waits for a Fast DDS reliable writer's "
+              "heartbeat to repair a tail lost in transport); live", "s", 0.0, 60.0),
+    ParamSpec("recorder.drain_timeout", 1.0, "at shutdown, stop draining after this long, "
+              "however much is still published (keep the close within ros2 launch's 5 s "
+              "before SIGTERM); live", "s", 0.0, 600.0),
     HARDWARE_ID_PARAM,
 ]
 LIVE = ("recorder.split_size", "recorder.split_duration", "recorder.drain_quiet",
@@ -143,6 +161,8 @@ class RecorderNode(Node):
         self.parts: list[Path] = []
         self._closed_written: dict[str, int] = {}
         self._types: dict[str, str] = {}  # absolute topic -> type
+        self._subs: list[tuple[Any, str, Any]] = []  # subscription, topic, its write callback
+        self.unwritten: dict[str, int] = {}  # taken at shutdown but not written, per topic
         self._qos: dict[str, list] = {}  # absolute topic -> offered QoS recorded (rosbags)
         self._writer = self._new_part()
         self.loss = LossTracker()
@@ -160,6 +180,8 @@ class RecorderNode(Node):
             self._resolver = self.create_timer(RESOLVE_PERIOD, self._resolve_pending)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
+        self._chunk_check = cfg["recorder.chunk_interval"] / CHUNK_CHECKS  # [s]
+        self._chunk_timer = self.create_timer(self._chunk_check, self._close_chunk_if_due)
         waiting = f" (waiting for {', '.join(self._pending)})" if self._pending else ""
         self.get_logger().info(f"recording {', '.join(self.loss.topics) or 'nothing yet'}"
                                f"{waiting} to {self.output}")
@@ -223,8 +245,9 @@ class RecorderNode(Node):
         else:
             qos = QoSProfile(depth=self._cfg["recorder.queue_depth"],
                              reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.create_subscription(_msg_class(typename), topic, self._writer_for(name), qos,
-                                 raw=True)
+        write = self._writer_for(name)
+        sub = self.create_subscription(_msg_class(typename), topic, write, qos, raw=True)
+        self._subs.append((sub, name, write))
 
     def _resolve_pending(self) -> None:
         """Subscribe to pending topics that now have a publisher.
@@ -255,8 +278,11 @@ class RecorderNode(Node):
     def _new_part(self) -> BagWriter:
         path = self.output / f"part_{len(self.parts):04d}" if self._split else self.output
         self.parts.append(path)
+        mcap = self._cfg["recorder.storage"] == "mcap"
         writer = BagWriter(path, storage=self._cfg["recorder.storage"],
-                           namespace=self.get_namespace()).open()
+                           namespace=self.get_namespace(),
+                           chunk_interval=self._cfg["recorder.chunk_interval"] if mcap else None,
+                           sync=self._cfg["recorder.fsync"]).open()
         for topic, typename in self._types.items():
             writer.add_topic(topic, typename, qos=self._qos.get(topic))
         self._part_bytes = 0
@@ -277,6 +303,10 @@ class RecorderNode(Node):
             self._finish(self._writer)
             self._writer = self._new_part()
             self._part_start = stamp_ns
+
+    def _close_chunk_if_due(self) -> None:
+        """Close the open chunk if it would be chunk_interval old before the next check."""
+        self._writer.close_chunk_if_due(ahead=self._chunk_check)
 
     def _finish(self, writer: BagWriter) -> None:
         for topic, n in writer.close().items():
@@ -343,25 +373,42 @@ class RecorderNode(Node):
         written = self.written
         return {topic: {"received": s.received, "written": written.get(topic, 0),
                         "dropped": s.dropped, "missed_at_start": s.missed_at_start,
+                        "unwritten_at_shutdown": self.unwritten.get(topic, 0),
                         "best_effort": topic in self._best_effort}
                 for topic, s in self.loss.topics.items()}
 
-    def drain(self, executor, quiet: float | None = None, limit: float | None = None) -> int:
-        """Spin ``executor`` until no message arrived for ``quiet`` [s] (or ``limit`` [s]).
+    def drain(self, executor=None, quiet: float | None = None, limit: float | None = None,
+              stop=lambda: False) -> int:
+        """Write what DDS still queues for the recorder; return the messages taken.
 
-        Call before :meth:`close` at shutdown so what DDS still queues for the recorder is
-        written. Returns the messages taken while draining.
+        Takes from the subscriptions directly (:func:`clutch_ros.nodes.drain.drain`;
+        ``executor`` is not spun, so no timer runs and the node's own ``/diagnostics`` stay
+        silent) until none had a message for ``quiet`` [s] (``recorder.drain_quiet``),
+        ``limit`` [s] (``recorder.drain_timeout``) passed or ``stop()`` is true. Call before
+        :meth:`close` at shutdown.
         """
         quiet = self._cfg["recorder.drain_quiet"] if quiet is None else quiet
         limit = self._cfg["recorder.drain_timeout"] if limit is None else limit
-        start = total = sum(self.received.values())
-        end, since = time.monotonic() + limit, time.monotonic()
-        while time.monotonic() < end and time.monotonic() - since < quiet:
-            executor.spin_once(timeout_sec=0.02)
-            now_total = sum(self.received.values())
-            if now_total != total:
-                total, since = now_total, time.monotonic()
-        return total - start
+        return drain([(sub, write) for sub, _, write in self._subs], quiet, limit, stop)
+
+    def discard_queued(self, limit: float = DISCARD_LIMIT) -> int:
+        """Take and count (not write) what is still queued; at most ``limit`` [s] long.
+
+        The count goes into the summary (``unwritten_at_shutdown``) and the bag's
+        ``clutch_ros.dropped``; sequence gaps among them are counted as usual.
+        """
+        end, total = time.monotonic() + limit, 0
+        for sub, name, _ in self._subs:
+            def count(data, info, name=name) -> None:
+                gap = self.loss.received(name, info)
+                if gap:
+                    self._writer.mark_dropped(name, gap)
+                self.unwritten[name] = self.unwritten.get(name, 0) + 1
+                self._writer.mark_dropped(name, 1)
+
+            while time.monotonic() < end and (n := take(sub, count)):
+                total += n
+        return total
 
     def close(self) -> dict[str, int]:
         """Finish the bag(s) (verifying counts) and return messages written per topic."""
@@ -375,8 +422,9 @@ class RecorderNode(Node):
             self._writer.set_custom_data("clutch_ros.parts", str(len(self.parts)))
         self._finish(self._writer)
         written = self.written
-        lost = {k: n - written.get(k, 0) for k, n in self.received.items()
-                if n != written.get(k, 0)}
+        lost = {k: n - written.get(k, 0) - self.unwritten.get(k, 0)
+                for k, n in self.received.items()
+                if n != written.get(k, 0) + self.unwritten.get(k, 0)}
         if lost:
             self.get_logger().error(f"messages received but not written: {lost}")
         self.get_logger().info(f"recorder summary: {json.dumps(self.summary(), sort_keys=True)}")
@@ -384,13 +432,15 @@ class RecorderNode(Node):
 
 
 def _run(args) -> int:
-    """Spin the recorder until SIGINT/SIGTERM, then drain the DDS queues and close."""
-    stop = {"now": False}
+    """Spin the recorder until SIGINT/SIGTERM, then drain the DDS queues (bounded) and close."""
+    signals: list[float] = []  # [s] monotonic time of each SIGINT/SIGTERM
 
     def on_signal(signum, frame):
-        stop["now"] = True
+        signals.append(time.monotonic())
 
     rclpy.init(args=[sys.argv[0], *args], signal_handler_options=SignalHandlerOptions.NO)
+    signal.signal(signal.SIGINT, on_signal)  # from here on: a signal stops, never kills
+    signal.signal(signal.SIGTERM, on_signal)
     node = None
     try:
         try:
@@ -399,16 +449,17 @@ def _run(args) -> int:
         except (ClutchError, ValueError, ParameterException) as err:
             sys.stderr.write(f"{NAME}: error: {err}\n")
             return 2
-        signal.signal(signal.SIGINT, on_signal)
-        signal.signal(signal.SIGTERM, on_signal)
         executor = make_executor("single")
         executor.add_node(node)
-        while not stop["now"]:
+        while not signals:
             executor.spin_once(timeout_sec=0.1)
-        drained = node.drain(executor)
+        drained = node.drain(stop=lambda: len(signals) > 1)  # a second signal: close now
+        discarded = node.discard_queued()
         del realtime  # its /diagnostics timer lived as long as the spin
-        node.get_logger().info(f"shutdown: {drained} queued messages drained")
         node.close()
+        node.get_logger().info(
+            f"shutdown: {drained} queued messages written, {discarded} counted unwritten, "
+            f"bag closed {time.monotonic() - signals[0]:.3f} s after the signal")
         executor.shutdown()
     finally:
         if node is not None:
