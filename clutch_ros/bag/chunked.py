@@ -76,12 +76,15 @@ class ChunkedMcapWriter(McapWriter):
 
     def write(self, connection: Any, timestamp: int, data: bytes | memoryview) -> None:
         """Write one message; close the chunk when it is full or its time is up."""
+        interval = self.policy.interval
+        if interval is None:
+            super().write(connection, timestamp, data)
+            return
         now = time.monotonic()
         if not self.chunk.msgs:
             self._opened = now
         super().write(connection, timestamp, data)  # closes the chunk at 1 MiB itself
-        interval = self.policy.interval
-        if interval is not None and self.chunk.msgs and now - self._opened >= interval:
+        if self.chunk.msgs and now - self._opened >= interval:
             self.close_chunk()
 
     def close_if_due(self, ahead: float = 0.0) -> bool:
