@@ -372,3 +372,44 @@ def test_stopped_while_others_publish_leaves_a_complete_bag(ros_env, tmp_path, s
             assert decoded is not None
             read[channel.topic] = read.get(channel.topic, 0) + 1
     assert read == {t: n for t, n in counts.items() if n}
+
+
+def test_a_drain_cut_short_counts_what_it_leaves(ros_env, tmp_path):
+    """SIGINT right after a burst with ``drain_timeout`` 0: what is queued is counted.
+
+    The recorder takes what its queues still hold without writing it (``unwritten_at_shutdown``
+    in the summary, in the bag's ``clutch_ros.dropped``), and the bag is complete.
+    """
+    import signal
+
+    from clutch_msgs.msg import RigState
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    out = tmp_path / "cut"
+    args = ["--ros-args", "-p", f"recorder.output:={out}", "-p", "recorder.topics:=[rig_state]",
+            "-p", "recorder.drain_timeout:=0.0"]
+    keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+    recorder = None
+    try:
+        with Harness("cut_publisher") as h:
+            pub = h.node.create_publisher(RigState, "rig_state", keep_all)
+            h.spin_for(0.5)
+            recorder = NodeProcess("recorder", args, ros_env, tmp_path / "logs")
+            h.spin_until(lambda: pub.get_subscription_count() > 0, 60.0, "the recorder")
+            h.spin_for(1.0)
+            msg, stats = RigState(), {}
+            for i in range(N_SMALL * 2):
+                _publish_waiting(h, pub, _stamp(msg, i), stats)
+            recorder._proc.send_signal(signal.SIGINT)
+            h.spin_until(lambda: not recorder.alive(), 60.0, "the recorder to finish")
+    finally:
+        code = recorder.stop(timeout=30.0) if recorder else None
+    assert code == 0, recorder.tail(30)
+    stats = _summary(recorder)["/rig_state"]
+    print("recorder summary:", stats)
+    assert stats["unwritten_at_shutdown"] > 0  # a backlog was left, and counted
+    assert stats["written"] + stats["unwritten_at_shutdown"] == stats["received"]
+    assert check_bag(out) == {"/rig_state": stats["written"]}
+    with open_bag(out) as bag:
+        stored = parse_counts(bag.custom_data.get("clutch_ros.dropped", ""))
+    assert stored["/rig_state"] == stats["dropped"] + stats["unwritten_at_shutdown"]
