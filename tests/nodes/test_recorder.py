@@ -407,9 +407,56 @@ def test_a_drain_cut_short_counts_what_it_leaves(ros_env, tmp_path):
     assert code == 0, recorder.tail(30)
     stats = _summary(recorder)["/rig_state"]
     print("recorder summary:", stats)
-    assert stats["unwritten_at_shutdown"] > 0  # a backlog was left, and counted
+    # Whether a backlog is left at SIGINT depends on how far the recorder was behind (it may
+    # keep up on an idle machine); whatever was left is counted, and nothing is unaccounted.
+    # That a queued message is counted is asserted deterministically by
+    # test_queued_messages_are_counted_not_written below.
     assert stats["written"] + stats["unwritten_at_shutdown"] == stats["received"]
     assert check_bag(out) == {"/rig_state": stats["written"]}
     with open_bag(out) as bag:
         stored = parse_counts(bag.custom_data.get("clutch_ros.dropped", ""))
     assert stored["/rig_state"] == stats["dropped"] + stats["unwritten_at_shutdown"]
+
+
+def test_queued_messages_are_counted_not_written(ros_env, tmp_path):
+    """Messages DDS delivered into the recorder's queue but nobody took are counted, exactly.
+
+    The recorder node runs in this process and is never spun, so nothing takes its messages;
+    ``wait_for_all_acked`` returns once the recorder's reliable reader has every sample in its
+    history. :meth:`RecorderNode.discard_queued` must then count each of them as
+    ``unwritten_at_shutdown`` (and in the bag's ``clutch_ros.dropped``), write none, and the
+    bag closes complete.
+    """
+    from clutch_msgs.msg import RigState
+    from rclpy.duration import Duration
+    from rclpy.parameter import Parameter
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    from clutch_ros.nodes.recorder import RecorderNode
+
+    n = 300
+    out = tmp_path / "queued"
+    keep_all = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE)
+    with Harness("queue_publisher") as h:
+        pub = h.node.create_publisher(RigState, "rig_state", keep_all)
+        node = RecorderNode(context=h.context, parameter_overrides=[
+            Parameter("recorder.output", value=str(out)),
+            Parameter("recorder.topics", value=["rig_state"])])
+        try:
+            h.spin_until(lambda: pub.get_subscription_count() > 0, 60.0, "the recorder")
+            msg = RigState()
+            for i in range(n):
+                pub.publish(_stamp(msg, i))
+            assert pub.wait_for_all_acked(Duration(seconds=60)), "the recorder never acked"
+            assert node.discard_queued(limit=30.0) == n
+            node.close()
+            stats = node.summary()["/rig_state"]
+        finally:
+            node.destroy_node()
+    assert stats["received"] == n
+    assert stats["unwritten_at_shutdown"] == n
+    assert stats["written"] == 0
+    assert check_bag(out) == {"/rig_state": 0}
+    with open_bag(out) as bag:
+        stored = parse_counts(bag.custom_data.get("clutch_ros.dropped", ""))
+    assert stored["/rig_state"] == n
