@@ -8,6 +8,12 @@ rclpy subscription in the test receives (compared re-serialized: rclpy's
 ``serialize_message`` and different DDS paths fill alignment padding differently, so raw
 bytes of two processes are no reference), and the node's own status must arrive on
 /diagnostics.
+
+Issue 26: against a live chain (estimator and controller processes) the client gets and sets
+the estimator's parameters (an out-of-range value comes back refused with the node's own
+reason; a change made with ``ros2 param set`` reaches a subscribed client), publishes torque
+requests (cdr and json) the controller answers, and is refused on any other topic; the
+server's time is the node clock, sim time under ``use_sim_time``.
 """
 
 import asyncio
@@ -163,16 +169,38 @@ def test_live_time_parameters_and_client_publish(live_chain):
                           c.channels["/pressure_command"]["schema"])
         cdr = bytes(clutch_typestore().serialize_cdr(torque_request_msg(0, 123.0),
                                                      "clutch_msgs/msg/TorqueRequest"))
+        end = time.monotonic() + 30
+        while h.node.count_subscribers("torque_request") < 1 or not commands:
+            assert time.monotonic() < end, "the controller did not start"
+            await c.read_for(0.05)
+            h.executor.spin_once(timeout_sec=0.0)
         for channel, payload, torque in ((1, cdr, 123.0), (2, b'{"torque": 77.0}', 77.0)):
-            await c.read_for(0.3)
-            await c.publish(channel, payload)
+            # sent again each second: a request published before the dashboard's publisher
+            # matched the controller's subscription is lost, as for any volatile publisher
             end = time.monotonic() + 15
+            sent = 0.0
             while not any(m.requested_torque == torque for m in commands):
                 assert time.monotonic() < end, f"the controller did not get {torque} N m"
+                if time.monotonic() - sent > 1.0:
+                    await c.publish(channel, payload)
+                    sent = time.monotonic()
                 await c.read_for(0.05)
                 h.executor.spin_once(timeout_sec=0.0)
         await c.publish(3, cdr)
         await c.read_for(1.0)
+        # A valid set applies; a change made by anyone reaches a subscribed client.
+        await c.send_json(op="setParameters", id="set2", parameters=[
+            {"name": "/estimator.estimator.max_gap", "value": 1.5, "type": "float64"}])
+        await c.send_json(op="subscribeParameterUpdates",
+                          parameterNames=["/estimator.estimator.max_gap"])
+        await c.wait_for(lambda: any(m.get("id") == "set2" for m in c.parameter_values), 10,
+                         "the set answer")
+        await c.read_for(0.5)
+        request = SetParameters.Request(
+            parameters=[Parameter("estimator.max_gap", value=2.5).to_parameter_msg()])
+        assert h.call(direct, request).results[0].successful
+        await c.wait_for(lambda: any("id" not in m and m["parameters"][0]["value"] == 2.5
+                                     for m in c.parameter_values), 10, "the update")
         await c.close()
         return c, reason, commands
 
@@ -202,3 +230,47 @@ def test_live_time_parameters_and_client_publish(live_chain):
     assert any("channel 3 refused" in s["message"] for s in c.statuses)
     stamped = next(m for m in commands if m.requested_torque == 123.0)
     assert stamped.header.stamp.sec > 0
+    answer = next(m for m in c.parameter_values if m.get("id") == "set2")["parameters"]
+    assert answer == [{"name": "/estimator.estimator.max_gap", "value": 1.5, "type": "float64"}]
+
+
+def test_live_time_is_sim_time_under_use_sim_time(ros_env):
+    from rosgraph_msgs.msg import Clock
+
+    from tests.dashboard.command import free_port
+    from tests.nodes.rclpy_harness import node_process
+
+    port = free_port()
+    url = f"ws://127.0.0.1:{port}"
+    sim0 = 1000
+
+    async def scenario(h):
+        pub = h.node.create_publisher(Clock, "/clock", 10)
+        c = FoxgloveClient(url)
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                await c.connect()
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "the dashboard node did not start"
+                await asyncio.sleep(0.5)
+        await c.read_for(0.5)
+        assert not c.times  # no time before the first /clock
+        for i in range(40):
+            msg = Clock()
+            msg.clock.sec, msg.clock.nanosec = sim0 + i // 10, (i % 10) * 100_000_000
+            pub.publish(msg)
+            h.executor.spin_once(timeout_sec=0.0)
+            await c.read_for(0.05)
+        await c.read_for(0.3)
+        await c.close()
+        return c
+
+    with node_process("dashboard", ros_env, "-p", "use_sim_time:=true", "-p",
+                      f"dashboard.port:={port}"), Harness() as h:
+        c = asyncio.run(scenario(h))
+    assert "time" in c.server_info["capabilities"]
+    assert len(c.times) >= 10
+    assert all(sim0 * 10**9 <= t <= (sim0 + 4) * 10**9 for _, t in c.times), c.times[:5]
+    assert c.times[-1][1] >= (sim0 + 3) * 10**9
