@@ -42,7 +42,7 @@ def decode_torque_request(encoding: str, data: bytes) -> tuple[int | None, str, 
     """
     if encoding == "cdr":
         try:
-            msg = clutch_typestore().deserialize_cdr(data, _TYPENAME)
+            msg: Any = clutch_typestore().deserialize_cdr(data, _TYPENAME)
         except Exception as err:  # noqa: BLE001 - rosbags raises several kinds
             raise ValueError(f"not a CDR {_TYPENAME}: {err}") from err
         sec, nanosec = msg.header.stamp.sec, msg.header.stamp.nanosec

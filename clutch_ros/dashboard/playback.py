@@ -95,7 +95,7 @@ class PlaybackClock:
             if 0.0 < speed <= MAX_SPEED:
                 self.speed = float(speed)
             did_seek = seek_ns is not None
-            if did_seek:
+            if seek_ns is not None:
                 current = min(max(int(seek_ns), self.start_ns), self.end_ns)
                 self._seek = current
                 self.ended = False

@@ -186,10 +186,9 @@ class DashboardServer:
                 host=host,
                 port=int(port),
                 context=self._context,
-                # the SDK calls the callbacks a listener has; its ServerListener Protocol
-                # lists every callback (with no-op bodies), and subclassing it here would load
-                # the native SDK on import
-                server_listener=self.listener,  # type: ignore[arg-type]
+                # SdkListener has every callback of the SDK's ServerListener Protocol; it does
+                # not subclass it, which would load the native SDK on import
+                server_listener=self.listener,
                 message_backlog_size=self.backlog,
                 capabilities=capabilities,
                 supported_encodings=list(publish.encodings) if publish is not None else None,

@@ -43,7 +43,7 @@ def _coerce(value: Any, like: Any) -> Any:
 
 
 def _python(msg_value: Any) -> Any:
-    value = parameter_value_to_python(msg_value)
+    value: Any = parameter_value_to_python(msg_value)
     if hasattr(value, "tolist"):  # array.array of the array types
         value = value.tolist()
     return list(value) if isinstance(value, tuple) else value
