@@ -290,3 +290,15 @@ def test_an_app_offering_only_the_old_subprotocol_gets_http_400():
         response = asyncio.run(old_app(url))
     assert response.status_code == 400
     assert b"Missing expected sec-websocket-protocol header" in response.body
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--allow-publish", "--bag", str(BAG)], "--allow-publish applies to the live topics"),
+    (["--exit-at-end"], "apply to --bag playback only"),
+    (["--rate", "2"], "apply to --bag playback only"),
+])
+def test_options_of_the_other_mode_are_refused(args, message):
+    proc = subprocess.run([sys.executable, "-m", "clutch_ros.cli", "dashboard", *args],
+                          cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and message in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
