@@ -10,11 +10,18 @@ ROS delivers; ``clutch dashboard --bag`` plays a bag (:class:`BagStream`, :class
 - :mod:`~clutch_ros.dashboard.bag_stream`: a bag as a message stream, estimates computed
   with the offline replay when the bag has none.
 - :mod:`~clutch_ros.dashboard.player`: real-time (× rate) playback with ``/diagnostics``.
+- :mod:`~clutch_ros.dashboard.playback`: the player's clock under client control (pause,
+  seek, speed).
+- :mod:`~clutch_ros.dashboard.sdk_listener`: the SDK's callbacks, handed to plain handlers.
+- :mod:`~clutch_ros.dashboard.parameters`: ``/node.parameter`` names; the bag's read-only set.
+- :mod:`~clutch_ros.dashboard.client_publish`: the client-publish whitelist and decoding.
 - :mod:`~clutch_ros.dashboard.errors`: :class:`DashboardError`.
 """
 
 from clutch_ros.dashboard.bag_stream import BagStream, estimate_frames
 from clutch_ros.dashboard.errors import DashboardError
+from clutch_ros.dashboard.parameters import ReadOnlyParameters, split_name
+from clutch_ros.dashboard.playback import PlaybackClock
 from clutch_ros.dashboard.player import BagPlayer, diagnostic_array_cdr
 from clutch_ros.dashboard.server import (
     DEFAULT_BACKLOG,
@@ -35,8 +42,11 @@ __all__ = [
     "DashboardError",
     "DashboardServer",
     "DashboardTopic",
+    "PlaybackClock",
+    "ReadOnlyParameters",
     "absolute",
     "diagnostic_array_cdr",
     "estimate_frames",
     "message_definition",
+    "split_name",
 ]

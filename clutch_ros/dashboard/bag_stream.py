@@ -36,12 +36,14 @@ __all__ = ["BagStream", "estimate_frames"]
 _BLOCK = 4096
 
 
-def estimate_frames(result: Any, block: int = _BLOCK) -> Iterator[tuple[int, int, bytes]]:
+def estimate_frames(result: Any, block: int = _BLOCK, first_row: int = 0
+                    ) -> Iterator[tuple[int, int, bytes]]:
     """Yield ``(row, stamp_ns, cdr)`` for each ClutchEstimate ``clutch replay -o`` writes.
 
     Args:
         result: a :class:`~clutch_ros.offline.replay.ReplayResult`.
         block: messages serialized per numpy block.
+        first_row: skip the estimates of input rows before this one.
 
     ``row`` indexes the replay's RigState arrays (the input sample), ``stamp_ns`` is its header
     stamp [ns since epoch]; the bytes equal those :func:`~clutch_ros.offline.replay.write_estimates`
@@ -50,7 +52,8 @@ def estimate_frames(result: Any, block: int = _BLOCK) -> Iterator[tuple[int, int
     """
     serializer, rows, stamps, columns = estimate_layout(result)
     size = serializer.size
-    for first in range(0, len(rows), block):
+    skip = int(np.searchsorted(rows, first_row, side="left"))
+    for first in range(skip, len(rows), block):
         last = min(first + block, len(rows))
         part = {k: v[first:last] for k, v in columns.items()}
         data = serializer.serialize_stamped(stamps[first:last], part).tobytes()
@@ -124,7 +127,16 @@ class BagStream:
             self.start_ns, self.end_ns = reader.start_ns, reader.end_ns
 
     def __iter__(self) -> Iterator[tuple[int, str, bytes]]:
+        """Yield ``(time_ns, topic, cdr)`` of the whole bag (see :meth:`messages`)."""
+        return self.messages()
+
+    def messages(self, start_ns: int | None = None) -> Iterator[tuple[int, str, bytes]]:
         """Yield ``(time_ns, topic, cdr)`` in time order (an estimate right after its input).
+
+        Args:
+            start_ns: first bag time to yield [ns since epoch] (None: the start). The
+                estimates were computed over the whole bag from its start, so those from a
+                later position are the ones of a whole pass (``clutch replay -o``'s).
 
         ``time_ns`` is the bag (receive) time [ns since epoch]; for a computed estimate it is
         the bag time of its RigState input.
@@ -132,16 +144,17 @@ class BagStream:
         with BagReader(self.path) as reader:
             raw = (
                 (int(m.timestamp_ns), 0, m.topic, bytes(m.msg))
-                for m in reader.messages(self._raw, raw=True)
+                for m in reader.messages(self._raw, raw=True, start_ns=start_ns)
             )
             streams: list[Iterator[tuple[int, int, str, bytes]]] = [raw]
             if self._estimates is not None:
-                streams.append(self._computed())
+                streams.append(self._computed(start_ns))
             for time_ns, _, topic, data in heapq.merge(*streams, key=lambda m: (m[0], m[1])):
                 yield time_ns, topic, data
 
-    def _computed(self) -> Iterator[tuple[int, int, str, bytes]]:
+    def _computed(self, start_ns: int | None) -> Iterator[tuple[int, int, str, bytes]]:
         times = self._rig_times
         topic = self._est_topic
-        for row, _, data in estimate_frames(self._estimates):
+        first = 0 if start_ns is None else int(np.searchsorted(times, start_ns, side="left"))
+        for row, _, data in estimate_frames(self._estimates, first_row=first):
             yield int(times[row]), 1, topic, data

@@ -19,6 +19,12 @@ count is discarded); what it does expose is a log record ``outbox for client ADD
 The server counts those overflow events per client address, and counts client connections
 from the SDK's ``Registered client`` / ``Unregistered client`` records; :meth:`status` reports
 them with the messages forwarded per topic, for ``/diagnostics``.
+
+Capabilities (serverInfo): ``time`` on request (:meth:`DashboardServer.broadcast_time`),
+``parameters``, ``clientPublish`` and ``playbackControl`` when given their handlers
+(:mod:`~clutch_ros.dashboard.sdk_listener`). The SDK accepts only clients that offer the
+WebSocket subprotocol ``foxglove.sdk.v1``; any other (an app speaking only the older
+``foxglove.websocket.v1``) gets HTTP 400 "Missing expected sec-websocket-protocol header".
 """
 
 from __future__ import annotations
@@ -31,6 +37,14 @@ from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 from clutch_ros.dashboard.errors import DashboardError
+from clutch_ros.dashboard.sdk_listener import (
+    ParameterHandler,
+    PlaybackHandler,
+    PlaybackReport,
+    SdkListener,
+    sdk_playback_state,
+    to_sdk_parameters,
+)
 from clutch_ros.dashboard.topics import (
     MESSAGE_ENCODING,
     SCHEMA_ENCODING,
@@ -77,19 +91,6 @@ class _SdkLogTap(logging.Handler):
             self.handleError(record)
 
 
-class _Listener:
-    """foxglove ``ServerListener``: track subscriptions per client (ids only)."""
-
-    def __init__(self, owner: DashboardServer):
-        self._owner = owner
-
-    def on_subscribe(self, client: Any, channel: Any) -> None:
-        self._owner._on_subscription(client.id, channel.topic, +1)
-
-    def on_unsubscribe(self, client: Any, channel: Any) -> None:
-        self._owner._on_subscription(client.id, channel.topic, -1)
-
-
 class DashboardServer:
     """Foxglove WebSocket server with one ``cdr``/``ros2msg`` channel per dashboard topic.
 
@@ -100,6 +101,16 @@ class DashboardServer:
         topics: the topics to serve (default :data:`~clutch_ros.dashboard.topics.TOPICS`).
         namespace: ROS namespace that relative topic names resolve in (default ``/``).
         name: server name shown by Foxglove.
+        serve_time: advertise ``Capability.Time``; the owner calls :meth:`broadcast_time` with the
+            time its log times come from (bag time, or the node clock).
+        playback_range: ``(start_ns, end_ns)`` of the data played back [ns since epoch]:
+            advertises playback control (``dataStartTime``/``dataEndTime`` in serverInfo);
+            needs ``playback``.
+        playback: the :class:`~clutch_ros.dashboard.sdk_listener.PlaybackHandler`.
+        parameters: a :class:`~clutch_ros.dashboard.sdk_listener.ParameterHandler`:
+            advertises ``parameters`` (and ``parametersSubscribe``).
+        publish: a :class:`~clutch_ros.dashboard.client_publish.PublishGate`: advertises
+            ``clientPublish`` with its encodings (``cdr``, ``json``).
 
     Raises:
         DashboardError: the server cannot listen on ``host:port`` or ``backlog`` < 1.
@@ -118,6 +129,11 @@ class DashboardServer:
         topics: Iterable[DashboardTopic] = TOPICS,
         namespace: str = "/",
         name: str = "clutch_ros dashboard",
+        serve_time: bool = False,
+        playback_range: tuple[int, int] | None = None,
+        playback: PlaybackHandler | None = None,
+        parameters: ParameterHandler | None = None,
+        publish: Any = None,
     ):
         import foxglove  # loads the SDK's native server: only when a dashboard is served
 
@@ -132,6 +148,7 @@ class DashboardServer:
         self._clients: set[str] = set()
         self._connections = 0
         self._overflows: dict[str, int] = {}
+        self._statuses = 0
         self._tap = _SdkLogTap(self)
         self._attach_tap()
         self._context = foxglove.Context()
@@ -151,17 +168,32 @@ class DashboardServer:
             )
             self.typenames[abs_name] = topic.typename
             self._forwarded[abs_name] = 0
+        from foxglove.websocket import Capability
+
+        capabilities = [Capability.Time] if serve_time else []
+        if parameters is not None:
+            capabilities.append(Capability.Parameters)
+        if publish is not None:
+            capabilities.append(Capability.ClientPublish)
+        if playback_range is not None:
+            if playback is None:
+                raise DashboardError("playback control needs a playback handler")
+            capabilities.append(Capability.PlaybackControl)
+        self.listener = SdkListener(self, parameters, publish, playback)
         try:
             self._server = foxglove.start_server(
                 name=name,
                 host=host,
                 port=int(port),
                 context=self._context,
-                # the SDK calls the callbacks a listener has; its ServerListener Protocol
-                # lists every callback (with no-op bodies), and subclassing it here would load
-                # the native SDK on import
-                server_listener=_Listener(self),  # type: ignore[arg-type]
+                # SdkListener has every callback of the SDK's ServerListener Protocol; it does
+                # not subclass it, which would load the native SDK on import
+                server_listener=self.listener,
                 message_backlog_size=self.backlog,
+                capabilities=capabilities,
+                supported_encodings=list(publish.encodings) if publish is not None else None,
+                playback_time_range=(None if playback_range is None else
+                                     (int(playback_range[0]), int(playback_range[1]))),
             )
         except Exception as err:  # noqa: BLE001 - the SDK raises its own error types
             self._detach_tap()
@@ -219,6 +251,41 @@ class DashboardServer:
         channel.log(bytes(data), log_time=time.time_ns() if log_time_ns is None else log_time_ns)
         self._forwarded[topic] += 1
 
+    def broadcast_time(self, time_ns: int) -> None:
+        """Send the server's time [ns since epoch] to every client (``time`` capability)."""
+        server = self._server
+        if server is not None and time_ns > 0:
+            server.broadcast_time(int(time_ns))
+
+    def broadcast_playback(self, report: PlaybackReport) -> None:
+        """Send the player's state to every client (not in answer to a request)."""
+        server = self._server
+        if server is not None:
+            server.broadcast_playback_state(sdk_playback_state(report))
+
+    def publish_parameters(self, values: dict[str, Any]) -> None:
+        """Send changed parameter values to the clients subscribed to them."""
+        server = self._server
+        if server is not None and values:
+            server.publish_parameter_values(to_sdk_parameters(values))
+
+    def status_message(self, text: str, level: str = "info", status_id: str | None = None
+                       ) -> None:
+        """Show ``text`` in every client (``level``: info, warning, error).
+
+        A later message with the same ``status_id`` replaces it.
+        """
+        from foxglove import StatusLevel
+
+        server = self._server
+        if server is None:
+            return
+        levels = {"info": StatusLevel.Info, "warning": StatusLevel.Warning,
+                  "error": StatusLevel.Error}
+        with self._lock:
+            self._statuses += 1
+        server.publish_status(text, levels[level], status_id)
+
     def has_subscribers(self, topic: str) -> bool:
         """Return True when at least one client is subscribed to ``topic``."""
         channel = self.channels.get(topic)
@@ -241,6 +308,7 @@ class DashboardServer:
                 "connections": self._connections,
                 "subscriptions": sum(len(s) for s in self._subscriptions.values()),
                 "message_backlog": self.backlog,
+                "status_messages": self._statuses,
             }
             overflows = dict(self._overflows)
         for topic, count in self._forwarded.items():

@@ -14,16 +14,15 @@ third one's messages are being dropped must stay within 10 % of its rate before.
 
 import asyncio
 import re
-import socket
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
 
 from clutch_ros.bag.reader import BagReader
 from tests.conftest import REPO
+from tests.dashboard.command import dashboard_command
 from tests.dashboard.foxglove_client import FoxgloveClient
 
 BAG = REPO / "tests/data/golden/bags/table3_seq1_10rpm"
@@ -38,12 +37,6 @@ SERVED = {
     "/can_frames": "clutch_msgs/msg/CanFrame",  # every clutch topic (issue 25)
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
 }
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -65,29 +58,11 @@ def replayed(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def server():
-    """Run the command in a subprocess; yield its ws:// URL and collects its stderr."""
-    port = free_port()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "clutch_ros.cli", "dashboard", "--bag", str(BAG), "--rate",
-         str(RATE), "--loop", "--port", str(port), "--backlog", "64"],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines: list[str] = []
-    ready = threading.Event()
-
-    def pump():
-        for line in proc.stderr:
-            lines.append(line)
-            if "serving" in line:
-                ready.set()
-
-    threading.Thread(target=pump, daemon=True).start()
-    assert ready.wait(60), "".join(lines)
-    url = re.search(r"ws://\S+", "".join(lines)).group(0)
-    assert url == f"ws://127.0.0.1:{port}"
-    yield url
-    proc.send_signal(2)  # SIGINT: the player stops, the server closes, exit 0
-    out, _ = proc.communicate(timeout=20)
-    assert proc.returncode == 0, "".join(lines)
+    """Run the command in a subprocess; yield its ws:// URL."""
+    with dashboard_command("--bag", str(BAG), "--rate", str(RATE), "--loop", "--backlog",
+                           "64") as (url, lines):
+        assert re.search(r"ws://\S+", "".join(lines)).group(0) == url
+        yield url
 
 
 async def scenario(url):
@@ -196,3 +171,134 @@ def test_overflow_reported_on_diagnostics(clients):
     assert int(last["outbox_full_events"]) >= 1, last
     assert last["level"] == 1  # WARN: a client lost messages
     assert int(last["forwarded_clutch_estimate"]) > 0
+
+
+# -- playback control, time, parameters (issue 26) ---------------------------------------------
+PLAY_RATE = 2.0
+
+
+def stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+async def controlled(url, start_ns):
+    """Play, pause, resume, seek back, seek to the end; parameters; return the client and marks."""
+    c = FoxgloveClient(url)
+    await c.connect()
+    await c.subscribe(["/rig_state", "/clutch_estimate"])
+    marks = {}
+    await c.read_for(2.0)
+    marks["pause"] = time.monotonic()
+    await c.playback("pause", PLAY_RATE, request_id="pause")
+    await c.wait_for(lambda: any(s["request_id"] == "pause" for s in c.states), 5, "paused")
+    await c.read_for(1.5)
+    marks["resume"] = time.monotonic()
+    await c.playback("play", PLAY_RATE, request_id="resume")
+    await c.read_for(1.0)
+    marks["seek"] = time.monotonic()
+    await c.playback("play", PLAY_RATE, seek_ns=start_ns + 3_000_000_000, request_id="seek")
+    await c.read_for(1.0)
+    marks["end"] = time.monotonic()
+    await c.playback("play", PLAY_RATE, seek_ns=start_ns + 13_500_000_000, request_id="end")
+    await c.wait_for(lambda: any(s["status"] == "ended" for s in c.states), 10, "the end")
+    await c.send_json(op="getParameters", parameterNames=[], id="all")
+    await c.send_json(op="setParameters", id="set", parameters=[
+        {"name": "/estimator.spline.gain", "value": 2.0, "type": "float64"}])
+    await c.wait_for(lambda: {"all", "set"} <= {p.get("id") for p in c.parameter_values}
+                     and c.statuses, 10, "the parameter answers")
+    await c.close()
+    return c, marks
+
+
+def after(client, topics, wall):
+    return [m for t in topics for m in client.messages[t] if m[0] >= wall]
+
+
+def test_time_playback_control_and_parameters(replayed):
+    with BagReader(BAG) as bag:
+        start_ns, end_ns = bag.start_ns, bag.end_ns
+    with dashboard_command("--bag", str(BAG), "--rate", str(PLAY_RATE)) as (url, _):
+        c, marks = asyncio.run(controlled(url, start_ns))
+    info = c.server_info
+    assert {"time", "playbackControl", "parameters"} <= set(info["capabilities"])
+    assert "clientPublish" not in info["capabilities"]
+    assert info["dataStartTime"] == {"sec": start_ns // 10**9, "nsec": start_ns % 10**9}
+    assert info["dataEndTime"] == {"sec": end_ns // 10**9, "nsec": end_ns % 10**9}
+    topics = ["/rig_state", "/clutch_estimate"]
+    data = sorted(m for t in topics for m in c.messages[t])
+    # Time messages track the log times: while data flows, each server time is within 0.5 s
+    # of the log time of a message received around it (within 1 s: the SDK queues time and
+    # data apart, so a busy client may read them in another order).
+    checked = 0
+    for wall, t_ns in c.times:
+        around = [m for m in data if abs(m[0] - wall) < 1.0]
+        if any(abs(m[0] - wall) < 0.1 for m in around):
+            closest = min(around, key=lambda m: abs(m[1] - t_ns))
+            assert abs(t_ns - closest[1]) <= 0.5e9, (t_ns, closest[1])
+            checked += 1
+    assert checked >= 20
+    # A pause stops the flow: nothing past the position it reports goes out until the
+    # resume (what was on its way may still arrive; counted, a timing figure).
+    state = next(s for s in c.states if s["request_id"] == "pause")
+    assert state["status"] == "paused" and not state["did_seek"]
+    assert state["wall"] - marks["pause"] < 2.0
+    held = state["current_ns"]
+    assert not [m for m in data if marks["pause"] <= m[0] < marks["resume"] and m[1] > held]
+    late = [m for m in data if marks["pause"] + 0.5 <= m[0] < marks["resume"]]
+    sys.stderr.write(f"pause: answered after {state['wall'] - marks['pause']:.3f} s; "
+                     f"{len(late)} messages (sent before it) arrived 0.5 s or more after\n")
+    last_before = max(m[1] for m in data if m[0] < marks["resume"])
+    resumed = [m for m in data if marks["resume"] <= m[0] < marks["seek"]]
+    assert len(resumed) >= 50
+    assert last_before <= min(m[1] for m in resumed) < last_before + 0.1e9
+    # A seek restarts the flow at the new position.
+    state = next(s for s in c.states if s["request_id"] == "seek")
+    assert state["did_seek"] and state["current_ns"] == start_ns + 3_000_000_000
+    sought = [m for m in data if m[0] >= marks["seek"] + 0.2 and m[0] < marks["end"]]
+    first = min(m[1] for m in sought)
+    assert start_ns + 3_000_000_000 <= first < start_ns + 3_500_000_000
+    # Every estimate, before and after pause and seeks, equals clutch replay -o's.
+    estimates = c.messages["/clutch_estimate"]
+    assert len(estimates) >= 200
+    for _, _, payload in estimates:
+        assert payload == replayed[stamp_ns(c.decode("/clutch_estimate", payload))][1]
+    assert c.states[-1]["status"] == "ended"
+    # Parameters: the estimator's, read-only.
+    values = {q["name"]: q["value"] for msg in c.parameter_values if msg.get("id") == "all"
+              for q in msg["parameters"]}
+    from clutch_ros.config.params_file import load_params
+    from clutch_ros.config.presets import preset_path
+
+    flat = load_params(preset_path("flexiforce_8")).to_flat()
+    assert values["/estimator.spline.law"] == flat["spline.law"]
+    assert values["/estimator.clutch.lamella_count"] == flat["clutch.lamella_count"]
+    assert values["/estimator.spline.gain"] == pytest.approx(flat["spline.gain"])
+    answer = next(p for p in c.parameter_values if p.get("id") == "set")["parameters"]
+    assert answer[0]["value"] == pytest.approx(flat["spline.gain"])  # unchanged
+    assert any("/estimator.spline.gain: read-only" in s["message"] for s in c.statuses)
+
+
+def test_an_app_offering_only_the_old_subprotocol_gets_http_400():
+    import websockets
+
+    async def old_app(url):
+        with pytest.raises(websockets.exceptions.InvalidStatus) as err:
+            await websockets.connect(url, subprotocols=["foxglove.websocket.v1"])
+        return err.value.response
+
+    with dashboard_command("--bag", str(BAG)) as (url, _):
+        response = asyncio.run(old_app(url))
+    assert response.status_code == 400
+    assert b"Missing expected sec-websocket-protocol header" in response.body
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--allow-publish", "--bag", str(BAG)], "--allow-publish applies to the live topics"),
+    (["--exit-at-end"], "apply to --bag playback only"),
+    (["--rate", "2"], "apply to --bag playback only"),
+])
+def test_options_of_the_other_mode_are_refused(args, message):
+    proc = subprocess.run([sys.executable, "-m", "clutch_ros.cli", "dashboard", *args],
+                          cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and message in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr

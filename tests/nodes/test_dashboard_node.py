@@ -8,19 +8,21 @@ rclpy subscription in the test receives (compared re-serialized: rclpy's
 ``serialize_message`` and different DDS paths fill alignment padding differently, so raw
 bytes of two processes are no reference), and the node's own status must arrive on
 /diagnostics.
+
+Issue 26: against a live chain (estimator and controller processes) the client gets and sets
+the estimator's parameters (an out-of-range value comes back refused with the node's own
+reason; a change made with ``ros2 param set`` reaches a subscribed client), publishes torque
+requests (cdr and json) the controller answers, and is refused on any other topic; the
+server's time is the node clock, sim time under ``use_sim_time``.
 """
 
 import asyncio
 import re
-import subprocess
-import sys
-import threading
 import time
 
 import pytest
 
-from tests.cli.test_dashboard import free_port
-from tests.conftest import REPO
+from tests.dashboard.command import dashboard_command
 from tests.dashboard.foxglove_client import FoxgloveClient
 from tests.nodes.rclpy_harness import Harness, rig_state
 
@@ -37,26 +39,9 @@ def canonical(client, topic, data):
 
 @pytest.fixture
 def dashboard(ros_env):
-    port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "clutch_ros.cli", "dashboard", "--port",
-                             str(port)], cwd=REPO, env=ros_env, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
-    lines: list[str] = []
-    ready = threading.Event()
-
-    def pump():
-        for line in proc.stdout:
-            lines.append(line)
-            if "Foxglove WebSocket server on" in line:
-                ready.set()
-
-    threading.Thread(target=pump, daemon=True).start()
-    assert ready.wait(60), "".join(lines)
-    assert re.search(rf"ws://127\.0\.0\.1:{port}\b", "".join(lines))
-    yield f"ws://127.0.0.1:{port}"
-    proc.send_signal(2)
-    proc.wait(15)
-    assert proc.returncode == 0, "".join(lines)
+    with dashboard_command(env=ros_env, ready="Foxglove WebSocket server on") as (url, lines):
+        assert re.search(rf"{url}\b", "".join(lines))
+        yield url
 
 
 def test_live_topics_forwarded_as_ros_bytes(dashboard):
@@ -131,3 +116,166 @@ def test_live_topics_forwarded_as_ros_bytes(dashboard):
     values = {kv.key: kv.value for kv in ours[-1].values}
     assert int(values["forwarded_rig_state"]) == N and int(values["lost_rig_state"]) == 0
     assert int(values["clients"]) == 1
+
+
+@pytest.fixture
+def live_chain(ros_env):
+    """Estimator and controller processes, and ``clutch dashboard --allow-publish``."""
+    from tests.nodes.rclpy_harness import node_process
+
+    with node_process("estimator", ros_env), node_process("controller", ros_env), \
+            dashboard_command("--allow-publish", env=ros_env,
+                              ready="Foxglove WebSocket server on") as (url, lines):
+        assert "clients may publish on /torque_request" in "".join(lines)
+        yield url
+
+
+def test_live_time_parameters_and_client_publish(live_chain):
+    from clutch_msgs.msg import PressureCommand
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    from clutch_ros.bag.typestore import clutch_typestore, torque_request_msg
+    from clutch_ros.config.params_file import load_params
+    from clutch_ros.config.presets import preset_path
+    from clutch_ros.nodes.qos import reliable_qos
+
+    bad = "estimator.input_timeout"  # range 0.001 .. 3600 s
+
+    async def scenario(h):
+        commands = h.collect(PressureCommand, "pressure_command", reliable_qos())
+        direct = h.node.create_client(SetParameters, "/estimator/set_parameters")
+        request = SetParameters.Request(parameters=[Parameter(bad, value=-1.0).to_parameter_msg()])
+        reason = h.call(direct, request).results[0].reason
+        c = FoxgloveClient(live_chain)
+        await c.connect()
+        names = [f"/estimator.{k}" for k in ("spline.law", "clutch.lamella_count",
+                                             "friction.mu_ref", bad)]
+        # The dashboard finds the nodes within a second or two: ask until they answer.
+        deadline = time.monotonic() + 30
+        while not any(len(m["parameters"]) == len(names) for m in c.parameter_values):
+            assert time.monotonic() < deadline, c.statuses
+            await c.send_json(op="getParameters", parameterNames=names, id="get")
+            await c.read_for(1.0)
+        await c.send_json(op="setParameters", id="set", parameters=[
+            {"name": f"/estimator.{bad}", "value": -1.0, "type": "float64"}])
+        await c.wait_for(lambda: any(bad in s["message"] for s in c.statuses), 10, "refusal")
+        # Publishing: CDR and JSON on /torque_request reach the controller; any other topic
+        # is refused with a status message.
+        schema = c.channels["/torque_request"]["schema"]
+        await c.advertise(1, "/torque_request", "cdr", "clutch_msgs/msg/TorqueRequest", schema)
+        await c.advertise(2, "/torque_request", "json", "clutch_msgs/msg/TorqueRequest")
+        await c.advertise(3, "/pressure_command", "cdr", "clutch_msgs/msg/PressureCommand",
+                          c.channels["/pressure_command"]["schema"])
+        cdr = bytes(clutch_typestore().serialize_cdr(torque_request_msg(0, 123.0),
+                                                     "clutch_msgs/msg/TorqueRequest"))
+        end = time.monotonic() + 30
+        while h.node.count_subscribers("torque_request") < 1 or not commands:
+            assert time.monotonic() < end, "the controller did not start"
+            await c.read_for(0.05)
+            h.executor.spin_once(timeout_sec=0.0)
+        for channel, payload, torque in ((1, cdr, 123.0), (2, b'{"torque": 77.0}', 77.0)):
+            # sent again each second: a request published before the dashboard's publisher
+            # matched the controller's subscription is lost, as for any volatile publisher
+            end = time.monotonic() + 15
+            sent = 0.0
+            while not any(m.requested_torque == torque for m in commands):
+                assert time.monotonic() < end, f"the controller did not get {torque} N m"
+                if time.monotonic() - sent > 1.0:
+                    await c.publish(channel, payload)
+                    sent = time.monotonic()
+                await c.read_for(0.05)
+                h.executor.spin_once(timeout_sec=0.0)
+        await c.publish(3, cdr)
+        await c.read_for(1.0)
+        # A valid set applies; a change made by anyone reaches a subscribed client.
+        await c.send_json(op="setParameters", id="set2", parameters=[
+            {"name": "/estimator.estimator.max_gap", "value": 1.5, "type": "float64"}])
+        await c.send_json(op="subscribeParameterUpdates",
+                          parameterNames=["/estimator.estimator.max_gap"])
+        await c.wait_for(lambda: any(m.get("id") == "set2" for m in c.parameter_values), 10,
+                         "the set answer")
+        await c.read_for(0.5)
+        request = SetParameters.Request(
+            parameters=[Parameter("estimator.max_gap", value=2.5).to_parameter_msg()])
+        assert h.call(direct, request).results[0].successful
+        await c.wait_for(lambda: any("id" not in m and m["parameters"][0]["value"] == 2.5
+                                     for m in c.parameter_values), 10, "the update")
+        await c.close()
+        return c, reason, commands
+
+    with Harness() as h:
+        c, reason, commands = asyncio.run(scenario(h))
+    assert {"time", "parameters", "clientPublish"} <= set(c.server_info["capabilities"])
+    assert {"cdr", "json"} <= set(c.server_info["supportedEncodings"])
+    assert "playbackControl" not in c.server_info["capabilities"]
+    # time: the node clock (system time here), as the log times are
+    assert len(c.times) >= 10
+    assert all(abs(t - (time.time_ns() - (time.monotonic() - wall) * 1e9)) < 0.5e9
+               for wall, t in c.times)
+    flat = load_params(preset_path("flexiforce_8")).to_flat()
+    got = next(m for m in c.parameter_values if len(m["parameters"]) == 4)["parameters"]
+    values = {p["name"]: p["value"] for p in got}
+    assert values["/estimator.spline.law"] == flat["spline.law"]
+    assert values["/estimator.clutch.lamella_count"] == flat["clutch.lamella_count"]
+    assert values["/estimator.friction.mu_ref"] == pytest.approx(flat["friction.mu_ref"])
+    assert values[f"/estimator.{bad}"] == pytest.approx(0.5)
+    assert reason
+    refusal = next(s for s in c.statuses if bad in s["message"])
+    assert refusal["message"] == f"/estimator.{bad}: {reason}" and refusal["level"] == 1
+    answer = next(m for m in c.parameter_values if m.get("id") == "set")["parameters"]
+    assert answer == [{"name": f"/estimator.{bad}", "value": 0.5, "type": "float64"}]
+    refused = [s["message"] for s in c.statuses if "/pressure_command" in s["message"]]
+    assert refused and "refused" in refused[0] and "/torque_request" in refused[0]
+    assert any("channel 3 refused" in s["message"] for s in c.statuses)
+    stamped = next(m for m in commands if m.requested_torque == 123.0)
+    assert stamped.header.stamp.sec > 0
+    answer = next(m for m in c.parameter_values if m.get("id") == "set2")["parameters"]
+    assert answer == [{"name": "/estimator.estimator.max_gap", "value": 1.5, "type": "float64"}]
+
+
+def test_live_time_is_sim_time_under_use_sim_time(ros_env):
+    from rosgraph_msgs.msg import Clock
+
+    from tests.dashboard.command import free_port
+    from tests.nodes.rclpy_harness import node_process
+
+    port = free_port()
+    url = f"ws://127.0.0.1:{port}"
+    sim0 = 1000
+
+    async def scenario(h):
+        pub = h.node.create_publisher(Clock, "/clock", 10)
+        c = FoxgloveClient(url)
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                await c.connect()
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "the dashboard node did not start"
+                await asyncio.sleep(0.5)
+        await c.read_for(0.5)
+        assert not c.times  # no time before the first /clock
+        # /clock steps 0.1 s of sim time every 0.05 s of wall time until the node has sent
+        # time for a second (its /clock subscription matches our publisher after discovery)
+        i = 0
+        deadline = time.monotonic() + 60
+        while len(c.times) < 20:
+            assert time.monotonic() < deadline and i < 9000, "no time messages"
+            msg = Clock()
+            msg.clock.sec, msg.clock.nanosec = sim0 + i // 10, (i % 10) * 100_000_000
+            pub.publish(msg)
+            h.executor.spin_once(timeout_sec=0.0)
+            await c.read_for(0.05)
+            i += 1
+        await c.close()
+        return c, sim0 * 10**9 + i * 100_000_000
+
+    with node_process("dashboard", ros_env, "-p", "use_sim_time:=true", "-p",
+                      f"dashboard.port:={port}"), Harness() as h:
+        c, last_ns = asyncio.run(scenario(h))
+    assert "time" in c.server_info["capabilities"]
+    # every time sent is a sim time we published (not the wall clock), and it moves on
+    assert all(sim0 * 10**9 <= t <= last_ns for _, t in c.times), (c.times[:3], last_ns)
+    assert c.times[-1][1] - c.times[0][1] >= 500_000_000
