@@ -1,16 +1,19 @@
 """``clutch up LAUNCHFILE [name:=value ...]``: start the node set of an XML launch file here.
 
 ``ros2 launch`` is not installed where ROS 2 comes from the package index, so this reads the
-same ``launch/*.launch.xml`` files (the subset :mod:`clutch_ros.config.launch_file` accepts)
-and starts each ``<node>`` as its own process with the demo's supervision
-(:class:`clutch_ros.cli.processes.NodeProcess`): output to ``<log dir>/<node>.log``; a node
-that exits ends the launch (its last log lines are printed) and the others are stopped;
-Ctrl-C or SIGTERM stops every node cleanly (SIGINT, then SIGTERM, then SIGKILL), in reverse
-start order. The nodes join the ROS graph of this shell (``ROS_DOMAIN_ID``,
-``ROS_AUTOMATIC_DISCOVERY_RANGE`` as set).
+same XML launch files (what :mod:`clutch_ros.config.launch_file` accepts: the launch_xml
+elements rig files use, with ros2 launch's meaning) and starts each ``<node>`` as its own
+process with the demo's supervision (:class:`clutch_ros.cli.processes.NodeProcess`): output
+to ``<log dir>/<node>.log`` (``<node>.2.log`` ... after a respawn). A node with
+``respawn="true"`` that exits is started again after ``respawn_delay`` seconds (at most
+``respawn_max_retries`` times when given); any other node that exits ends the launch (its last
+log lines are printed) and the others are stopped. Ctrl-C or SIGTERM stops every node cleanly
+(SIGINT, then SIGTERM, then SIGKILL), in reverse start order. The nodes join the ROS graph
+of this shell (``ROS_DOMAIN_ID``, ``ROS_AUTOMATIC_DISCOVERY_RANGE`` as set).
 
 LAUNCHFILE is a path, or the name of a file in the package's ``launch/`` directory
-(``clutch up sim.launch.xml``). ``--print`` lists the node command lines and exits.
+(``clutch up sim.launch.xml``). ``--print`` lists the node command lines and exits
+(``--json``: also each node's resulting parameters and respawn settings).
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import shlex
 import signal
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +30,7 @@ from clutch_ros.cli.dispatch import emit_json
 from clutch_ros.cli.processes import NodeProcess, node_env
 from clutch_ros.config.launch_file import (
     LaunchFileError,
+    NodeEntry,
     load_launch,
     package_share,
     parse_overrides,
@@ -112,8 +117,10 @@ def run(args) -> int:
     _check(description)
     if args.print_only:
         commands: list[dict[str, Any]] = [
-            {"name": n.full_name, "executable": n.executable, "args": n.ros_args()}
-                    for n in description.nodes]
+            {"name": n.full_name, "executable": n.executable, "args": n.ros_args(),
+             "parameters": n.parameters(), "respawn": n.respawn,
+             "respawn_delay": n.respawn_delay, "respawn_max_retries": n.respawn_max_retries}
+            for n in description.nodes]
         if args.json:
             emit_json(commands)
         else:
@@ -122,39 +129,74 @@ def run(args) -> int:
         return 0
     log_dir = Path(args.log_dir or f"runs/up-{time.strftime('%Y%m%d-%H%M%S')}/logs")
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
-    procs: list[NodeProcess] = []
+    running: list[_Running] = []
     code = 0
     try:
         env = node_env()
         for node in description.nodes:
-            log_name = node.full_name.strip("/").replace("/", ".")
-            procs.append(NodeProcess(log_name, node.ros_args(), env, log_dir,
-                                     executable=node.executable))
-            _say(f"started {node.full_name} ({node.executable}, pid {procs[-1].pid}), log "
-                 f"{procs[-1].log_path}")
-        _say(f"{len(procs)} nodes running from {path}; Ctrl-C stops them")
-        code = _supervise(procs)
+            running.append(_Running(node, env, log_dir))
+            running[-1].start()
+        _say(f"{len(running)} nodes running from {path}; Ctrl-C stops them")
+        code = _supervise(running)
     except KeyboardInterrupt:
         _say("stopping")
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)  # a second TERM must not cut the stop
-        for proc in reversed(procs):
-            rc = proc.stop()
+        for item in reversed(running):
+            if item.proc is None or item.restart_at is not None:
+                continue  # waiting for its respawn: its exit was reported then
+            rc = item.proc.stop()
             if rc not in (0, -signal.SIGINT):
-                _say(f"{proc.name} exited with code {rc}; log {proc.log_path}")
+                _say(f"{item.proc.name} exited with code {rc}; log {item.proc.log_path}")
                 code = code or 1
         signal.signal(signal.SIGTERM, previous)
     _say(f"all nodes stopped (exit code {code})")
     return code
 
 
-def _supervise(procs: list[NodeProcess]) -> int:
-    """Wait until a node exits; report it and return 1 (0 when it ended with code 0)."""
+@dataclass
+class _Running:
+    """A launched node: its current process, and when it is due to be respawned."""
+
+    node: NodeEntry
+    env: dict
+    log_dir: Path
+    proc: NodeProcess | None = None
+    restart_at: float | None = None  # [s] time.monotonic() of the pending respawn
+    restarts: int = 0
+
+    def start(self) -> None:
+        name = self.node.full_name
+        self.proc = NodeProcess(name.strip("/").replace("/", "."), self.node.ros_args(),
+                                self.env, self.log_dir, executable=self.node.executable)
+        self.restart_at = None
+        _say(f"started {name} ({self.node.executable}, pid {self.proc.pid}), log "
+             f"{self.proc.log_path}")
+
+    def may_respawn(self) -> bool:
+        limit = self.node.respawn_max_retries
+        return self.node.respawn and (limit < 0 or self.restarts < limit)
+
+
+def _supervise(running: list[_Running]) -> int:
+    """Respawn nodes that ask for it; else wait until a node exits and return 1 (0 if rc 0)."""
     while True:
         time.sleep(POLL_S)
-        for proc in procs:
-            rc = proc.returncode
-            if rc is not None:
-                _say(f"node {proc.name} exited with code {rc}; stopping the others. "
-                     f"Last log lines:\n{proc.tail()}")
-                return 0 if rc == 0 else 1
+        for item in running:
+            if item.restart_at is not None:
+                if time.monotonic() >= item.restart_at:
+                    item.restarts += 1
+                    item.start()
+                continue
+            rc = item.proc.returncode
+            if rc is None:
+                continue
+            if item.may_respawn():
+                item.proc.stop()  # closes its log
+                item.restart_at = time.monotonic() + item.node.respawn_delay
+                _say(f"node {item.node.full_name} exited with code {rc}; respawning in "
+                     f"{item.node.respawn_delay:g} s. Last log lines:\n{item.proc.tail()}")
+                continue
+            _say(f"node {item.proc.name} exited with code {rc}; stopping the others. "
+                 f"Last log lines:\n{item.proc.tail()}")
+            return 0 if rc == 0 else 1

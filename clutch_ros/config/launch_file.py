@@ -1,84 +1,63 @@
-"""Read the subset of the ROS 2 XML launch format that the package's launch files use.
+"""Read ROS 2 XML launch files as ``ros2 launch`` does, for the node set ``clutch up`` starts.
 
 ``ros2 launch`` (launch, launch_ros, launch_xml) is not on the package index, so
-``clutch up`` starts the node set of ``launch/*.launch.xml`` itself from what this module
-reads. The files stay valid ``ros2 launch`` files: only elements, attributes and
-substitutions that launch_xml defines with the same meaning are accepted, anything else is a
-:class:`LaunchFileError` naming it (never silently ignored).
+``clutch up`` starts the nodes of a launch file itself from what this module reads. Only
+elements, attributes and substitutions that launch_xml defines are accepted, with the same
+meaning; anything else is a :class:`LaunchFileError` naming file, line and element (never
+silently ignored). Substitutions and value types: :mod:`clutch_ros.config.launch_subst`.
 
-Elements:
+Every element takes ``if=``/``unless=``. Elements:
+
 - ``<launch>``: the root.
-- ``<arg name= default= description=/>``: an argument; ``name:=value`` on the command line
-  overrides the default; an argument without default must be given.
-- ``<let name= value=/>``: set a variable (later ``$(var ...)`` see it).
-- ``<node pkg= exec= name= namespace= if= unless=>``: one node process, with children
-  ``<param name= value=/>`` (one parameter, value as YAML like ``-p``), ``<param from=/>`` (a
-  parameter file, ``--params-file``) and ``<remap from= to=/>``.
-
-Substitutions inside attribute values: ``$(var NAME)``, ``$(env NAME [DEFAULT])``,
-``$(find-pkg-share PKG)`` (``clutch_ros`` only: the directory that holds ``params/`` and
-``launch/``, i.e. the source tree or the installed ``share/clutch_ros``).
+- ``<arg name= [default=] [description=]/>``: declare an argument. It keeps a value already
+  set (``name:=value`` on the command line, an ``<include>``'s ``<arg>``, an earlier
+  ``<let>``), else takes its default; without either it is an error.
+- ``<let name= value=/>``: set a launch configuration.
+- ``<group [scoped=]>``: its children; scoped (the default) means configurations and the ROS
+  namespace set inside are forgotten at its end. ``forwarding="false"`` is refused.
+- ``<push-ros-namespace namespace=/>`` (or ``push_ros_namespace``): prefix the namespace of the
+  following nodes of the scope; a relative node namespace is appended to it, an absolute one
+  (``/x``, ``/``) is kept as it is.
+- ``<include file=>`` with ``<arg name= value=/>`` children: read another XML launch file in
+  the same scope (not a group: its ``<let>``/``<arg>`` values stay set afterwards). A relative
+  ``file`` is relative to the working directory, as in ``ros2 launch``; use ``$(dirname)``.
+- ``<node pkg= exec= [name=] [namespace=] [args=] [ros_args=] [respawn=] [respawn_delay=]
+  [respawn_max_retries=] [output=]>`` with ``<param name= value= [type=]/>``, nested
+  ``<param name=><param .../></param>``, ``<param from=/>`` (a parameter file) and
+  ``<remap from= to=/>`` children. Parameters keep document order (a later one wins).
 """
 
 from __future__ import annotations
 
-import os
 import re
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
+from xml.parsers import expat
 
 from clutch_ros.config.errors import LaunchFileError  # re-exported: its old home
-from clutch_ros.config.presets import params_dir
+from clutch_ros.config.launch_node import (
+    LaunchArg,
+    NodeEntry,
+    absolute_namespace,
+    node_entry,
+    prefix_namespace,
+)
+from clutch_ros.config.launch_subst import Where, check_attrs, package_share, substitute, truth
 
 __all__ = ["LaunchArg", "LaunchDescription", "LaunchFileError", "NodeEntry", "load_launch",
            "package_share", "parse_overrides"]
 
-PACKAGE = "clutch_ros"
-_SUBST = re.compile(r"\$\(([a-z-]+)((?:\s+[^()\s]+)*)\s*\)")
-_NODE_ATTRS = {"pkg", "exec", "name", "namespace", "if", "unless", "output"}
-_TRUE, _FALSE = ("true", "1", "yes", "on"), ("false", "0", "no", "off")
-
-
-@dataclass(frozen=True)
-class LaunchArg:
-    """A declared ``<arg>``: its name, default (None: required) and description."""
-
-    name: str
-    default: str | None
-    description: str = ""
+MAX_INCLUDE_DEPTH = 20
 
 
 @dataclass
-class NodeEntry:
-    """One ``<node>`` with every substitution resolved."""
+class Element:
+    """One XML element with the line it starts on."""
 
-    pkg: str
-    executable: str
-    name: str
-    namespace: str = "/"
-    params: list[tuple[str, str]] = field(default_factory=list)
-    param_files: list[str] = field(default_factory=list)
-    remaps: list[tuple[str, str]] = field(default_factory=list)
-
-    @property
-    def full_name(self) -> str:
-        """Return the fully qualified node name (``/rig1/estimator``)."""
-        return f"{self.namespace.rstrip('/')}/{self.name}"
-
-    def ros_args(self) -> list[str]:
-        """Return the ``--ros-args ...`` arguments ``ros2 launch`` would give the node.
-
-        Parameter files first, then single parameters (later ones win), then remappings.
-        """
-        args = ["--ros-args", "-r", f"__node:={self.name}", "-r", f"__ns:={self.namespace}"]
-        for path in self.param_files:
-            args += ["--params-file", path]
-        for name, value in self.params:
-            args += ["-p", f"{name}:={value}"]
-        for src, dst in self.remaps:
-            args += ["-r", f"{src}:={dst}"]
-        return args
+    tag: str
+    attrib: dict[str, str]
+    line: int
+    children: list[Element] = field(default_factory=list)
 
 
 @dataclass
@@ -91,11 +70,13 @@ class LaunchDescription:
     nodes: list[NodeEntry]
 
 
-def package_share(pkg: str = PACKAGE) -> Path:
-    """Return the share directory of ``pkg`` (``clutch_ros`` only; see module docstring)."""
-    if pkg != PACKAGE:
-        raise LaunchFileError(f"$(find-pkg-share {pkg}): only {PACKAGE} is known here")
-    return params_dir().parent
+@dataclass
+class _Scope:
+    variables: dict[str, str]
+    namespace: str | None = None
+
+    def copy(self) -> _Scope:
+        return _Scope(dict(self.variables), self.namespace)
 
 
 def parse_overrides(items: list[str]) -> dict[str, str]:
@@ -109,116 +90,144 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
     return out
 
 
-def _substitute(text: str, variables: dict[str, str], where: str) -> str:
-    def one(match: re.Match) -> str:
-        kind, rest = match.group(1), match.group(2).split()
-        if kind == "var" and len(rest) == 1:
-            if rest[0] not in variables:
-                raise LaunchFileError(f"{where}: $(var {rest[0]}) is not a declared argument")
-            return variables[rest[0]]
-        if kind == "env" and len(rest) in (1, 2):
-            value = os.environ.get(rest[0], rest[1] if len(rest) == 2 else None)
-            if value is None:
-                raise LaunchFileError(f"{where}: environment variable {rest[0]} is not set")
-            return value
-        if kind == "find-pkg-share" and len(rest) == 1:
-            return str(package_share(rest[0]))
-        raise LaunchFileError(f"{where}: unsupported substitution {match.group(0)!r} "
-                              "(supported: $(var N), $(env N [D]), $(find-pkg-share P))")
+def read_xml(path: Path) -> Element:
+    """Parse ``path`` into :class:`Element` objects that know their line numbers."""
+    parser = expat.ParserCreate()
+    stack: list[Element] = []
+    roots: list[Element] = []
 
-    out = _SUBST.sub(one, text)
-    if "$(" in out:
-        raise LaunchFileError(f"{where}: cannot read substitution in {text!r}")
-    return out
+    def start(tag, attrib):
+        elem = Element(tag, dict(attrib), parser.CurrentLineNumber)
+        (stack[-1].children if stack else roots).append(elem)
+        stack.append(elem)
 
-
-def _attrs(elem: ET.Element, allowed: set[str], required: set[str], where: str) -> None:
-    unknown = set(elem.attrib) - allowed
-    if unknown:
-        raise LaunchFileError(f"{where}: unsupported attribute(s) {', '.join(sorted(unknown))}")
-    missing = required - set(elem.attrib)
-    if missing:
-        raise LaunchFileError(f"{where}: missing attribute(s) {', '.join(sorted(missing))}")
+    parser.StartElementHandler = start
+    parser.EndElementHandler = lambda tag: stack.pop()
+    try:
+        with open(path, "rb") as f:
+            parser.ParseFile(f)
+    except OSError as err:
+        raise LaunchFileError(f"cannot read launch file {path}: {err.strerror or err}") from err
+    except expat.ExpatError as err:
+        raise LaunchFileError(f"{path}: not well-formed XML: {err}") from err
+    root = roots[0]
+    if root.tag != "launch":
+        raise LaunchFileError(f"{path}:{root.line}: the root element is <{root.tag}>, not "
+                              "<launch>")
+    return root
 
 
-def _truth(value: str, where: str) -> bool:
-    if value.strip().lower() in _TRUE:
+class _Reader:
+    """Walks the elements in document order, as launch visits the actions."""
+
+    def __init__(self, overrides: dict[str, str]):
+        self.declared: list[LaunchArg] = []
+        self.nodes: list[NodeEntry] = []
+        self.depth = 0
+        self.top = _Scope(dict(overrides))
+
+    def read_file(self, path: Path, scope: _Scope) -> None:
+        self.depth += 1
+        if self.depth > MAX_INCLUDE_DEPTH:
+            raise LaunchFileError(f"{path}: includes nested deeper than {MAX_INCLUDE_DEPTH} "
+                                  "(an include loop?)")
+        root = read_xml(path)
+        check_attrs(root, Where(path, root.line, "launch"), {"version"}, set())
+        self.children(root, path, scope)
+        self.depth -= 1
+
+    def children(self, parent: Element, path: Path, scope: _Scope) -> None:
+        for elem in parent.children:
+            where = Where(path, elem.line, elem.tag)
+            if not self.condition(elem, where, scope):
+                continue
+            handler = getattr(self, "on_" + elem.tag.replace("-", "_"), None)
+            if handler is None:
+                raise LaunchFileError(f"{where}: unsupported element (supported: arg, let, "
+                                      "group, push-ros-namespace, include, node)")
+            handler(elem, where, path, scope)
+
+    @staticmethod
+    def condition(elem: Element, where: Where, scope: _Scope) -> bool:
+        for attr, wanted in (("if", True), ("unless", False)):
+            if attr in elem.attrib:
+                value = substitute(elem.attrib[attr], scope.variables, where)
+                if truth(value, where, attr) != wanted:
+                    return False
         return True
-    if value.strip().lower() in _FALSE:
-        return False
-    raise LaunchFileError(f"{where}: {value!r} is not true or false")
 
+    def on_arg(self, elem, where, path, scope) -> None:
+        check_attrs(elem, where, {"name", "default", "description"}, {"name"})
+        if elem.children:
+            raise LaunchFileError(f"{where}: unsupported element <{elem.children[0].tag}> "
+                                  "inside <arg> (choices are not supported)")
+        name = elem.attrib["name"]
+        arg = LaunchArg(name, elem.attrib.get("default"), elem.attrib.get("description", ""))
+        if all(a.name != name for a in self.declared):
+            self.declared.append(arg)
+        if name in scope.variables:
+            return
+        if arg.default is None:
+            raise LaunchFileError(f"{where}: argument {name} is required "
+                                  f"({arg.description or 'no description'}); give "
+                                  f"{name}:=VALUE")
+        scope.variables[name] = substitute(arg.default, scope.variables, where)
 
-def _node(elem: ET.Element, variables: dict[str, str], where: str) -> NodeEntry | None:
-    _attrs(elem, _NODE_ATTRS, {"pkg", "exec"}, where)
-    sub = {k: _substitute(v, variables, where) for k, v in elem.attrib.items()}
-    if "if" in sub and not _truth(sub["if"], where + " if"):
-        return None
-    if "unless" in sub and _truth(sub["unless"], where + " unless"):
-        return None
-    namespace = sub.get("namespace", "/") or "/"
-    if not namespace.startswith("/"):
-        namespace = "/" + namespace
-    entry = NodeEntry(sub["pkg"], sub["exec"], sub.get("name", sub["exec"]), namespace)
-    for child in elem:
-        cwhere = f"{where} <{child.tag}>"
-        if child.tag == "param" and "from" in child.attrib:
-            _attrs(child, {"from"}, {"from"}, cwhere)
-            entry.param_files.append(_substitute(child.attrib["from"], variables, cwhere))
-        elif child.tag == "param":
-            _attrs(child, {"name", "value"}, {"name", "value"}, cwhere)
-            entry.params.append((_substitute(child.attrib["name"], variables, cwhere),
-                                 _substitute(child.attrib["value"], variables, cwhere)))
-        elif child.tag == "remap":
-            _attrs(child, {"from", "to"}, {"from", "to"}, cwhere)
-            entry.remaps.append((_substitute(child.attrib["from"], variables, cwhere),
-                                 _substitute(child.attrib["to"], variables, cwhere)))
-        else:
-            raise LaunchFileError(f"{cwhere}: unsupported element inside <node>")
-    return entry
+    def on_let(self, elem, where, path, scope) -> None:
+        check_attrs(elem, where, {"name", "value"}, {"name", "value"})
+        name = substitute(elem.attrib["name"], scope.variables, where)
+        scope.variables[name] = substitute(elem.attrib["value"], scope.variables, where)
+
+    def on_group(self, elem, where, path, scope) -> None:
+        check_attrs(elem, where, {"scoped", "forwarding"}, set())
+        scoped = truth(substitute(elem.attrib.get("scoped", "true"), scope.variables, where),
+                       where, "scoped")
+        forwarding = elem.attrib.get("forwarding", "true")
+        if not truth(substitute(forwarding, scope.variables, where), where, "forwarding"):
+            raise LaunchFileError(f"{where}: forwarding=\"false\" is not supported")
+        self.children(elem, path, scope.copy() if scoped else scope)
+
+    def on_push_ros_namespace(self, elem, where, path, scope) -> None:
+        check_attrs(elem, where, {"namespace"}, {"namespace"})
+        pushed = substitute(elem.attrib["namespace"], scope.variables, where)
+        scope.namespace = absolute_namespace(prefix_namespace(scope.namespace, pushed))
+
+    def on_include(self, elem, where, path, scope) -> None:
+        check_attrs(elem, where, {"file"}, {"file"})
+        file = Path(substitute(elem.attrib["file"], scope.variables, where))
+        values = []  # (name, value text) in order: each sees the ones before it
+        for child in elem.children:
+            cwhere = Where(path, child.line, child.tag)
+            if child.tag != "arg":
+                raise LaunchFileError(f"{cwhere}: unsupported element inside <include> "
+                                      "(supported: arg)")
+            check_attrs(child, cwhere, {"name", "value"}, {"name", "value"})
+            if {"if", "unless"} & set(child.attrib):
+                raise LaunchFileError(f"{cwhere}: if/unless are not supported here")
+            values.append((child, cwhere))
+        if not file.name.endswith(".xml"):
+            raise LaunchFileError(f"{where}: {file}: only XML launch files can be included")
+        if not file.is_file():
+            raise LaunchFileError(f"{where}: included launch file {file} not found")
+        for child, cwhere in values:
+            name = substitute(child.attrib["name"], scope.variables, cwhere)
+            scope.variables[name] = substitute(child.attrib["value"], scope.variables, cwhere)
+        self.read_file(file, scope)
+
+    def on_node(self, elem, where, path, scope) -> None:
+        entry = node_entry(elem, where, scope.variables, scope.namespace)
+        self.nodes.append(entry)
 
 
 def load_launch(path: str | Path, overrides: dict[str, str] | None = None) -> LaunchDescription:
     """Read launch file ``path`` with ``overrides`` (``name -> value``) for its arguments."""
     path = Path(path)
-    try:
-        root = ET.parse(path).getroot()
-    except OSError as err:
-        raise LaunchFileError(f"cannot read launch file {path}: {err.strerror or err}") from err
-    except ET.ParseError as err:
-        raise LaunchFileError(f"{path}: not well-formed XML: {err}") from err
-    if root.tag != "launch":
-        raise LaunchFileError(f"{path}: the root element is <{root.tag}>, not <launch>")
     overrides = dict(overrides or {})
-    declared: list[LaunchArg] = []
-    variables: dict[str, str] = {}
-    nodes: list[NodeEntry] = []
-    for index, elem in enumerate(root, start=1):
-        where = f"{path.name}: <{elem.tag}> #{index}"
-        if elem.tag == "arg":
-            _attrs(elem, {"name", "default", "description"}, {"name"}, where)
-            arg = LaunchArg(elem.attrib["name"], elem.attrib.get("default"),
-                            elem.attrib.get("description", ""))
-            declared.append(arg)
-            if arg.name in overrides:
-                variables[arg.name] = overrides.pop(arg.name)
-            elif arg.default is not None:
-                variables[arg.name] = _substitute(arg.default, variables, where)
-            else:
-                raise LaunchFileError(f"{path.name}: argument {arg.name} is required "
-                                      f"({arg.description or 'no description'}); give "
-                                      f"{arg.name}:=VALUE")
-        elif elem.tag == "let":
-            _attrs(elem, {"name", "value"}, {"name", "value"}, where)
-            variables[elem.attrib["name"]] = _substitute(elem.attrib["value"], variables, where)
-        elif elem.tag == "node":
-            entry = _node(elem, variables, where)
-            if entry is not None:
-                nodes.append(entry)
-        else:
-            raise LaunchFileError(f"{where}: unsupported element (supported: arg, let, node)")
-    if overrides:
-        names = ", ".join(a.name for a in declared) or "none"
-        raise LaunchFileError(f"{path.name}: unknown argument(s) {', '.join(sorted(overrides))}"
+    reader = _Reader(overrides)
+    reader.read_file(path, reader.top)
+    unknown = set(overrides) - {a.name for a in reader.declared}
+    if unknown:
+        names = ", ".join(a.name for a in reader.declared) or "none"
+        raise LaunchFileError(f"{path.name}: unknown argument(s) {', '.join(sorted(unknown))}"
                               f" (declared: {names})")
-    return LaunchDescription(path, declared, variables, nodes)
+    return LaunchDescription(path, reader.declared, reader.top.variables, reader.nodes)

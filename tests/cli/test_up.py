@@ -14,6 +14,7 @@ import re
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -98,15 +99,16 @@ def test_arguments_substitute_into_the_command_lines():
 @pytest.mark.parametrize(("text", "overrides", "message"), [
     ("<launch><arg name='a'/></launch>", {}, "argument a is required"),
     ("<launch><arg name='a' default='1'/></launch>", {"b": "2"}, "unknown argument(s) b"),
-    ("<launch><include file='x'/></launch>", {}, "unsupported element"),
-    ("<launch><node pkg='clutch_ros' exec='estimator' respawn='true'/></launch>", {},
-     "unsupported attribute(s) respawn"),
+    ("<launch><executable cmd='ls'/></launch>", {}, "<executable>: unsupported element"),
+    ("<launch><node pkg='clutch_ros' exec='estimator' respawn_max_retry='1'/></launch>", {},
+     "unsupported attribute(s) respawn_max_retry"),
     ("<launch><node pkg='clutch_ros' exec='$(var nope)'/></launch>", {},
-     "$(var nope) is not a declared argument"),
+     "$(var nope): no launch argument or <let> named nope"),
     ("<launch><node pkg='clutch_ros' exec='$(command ls)'/></launch>", {},
      "unsupported substitution"),
     ("<launch><arg name='r' default='maybe'/>"
-     "<node pkg='clutch_ros' exec='recorder' if='$(var r)'/></launch>", {}, "not true or false"),
+     "<node pkg='clutch_ros' exec='recorder' if='$(var r)'/></launch>", {},
+     "if='maybe' is not true, false, 1 or 0"),
     ("<launch", {}, "not well-formed XML"),
 ])
 def test_unsupported_or_bad_launch_files_are_refused(tmp_path, text, overrides, message):
@@ -165,3 +167,26 @@ def test_clutch_up_sim_brings_up_the_chain_and_stops_on_sigterm(tmp_path, ros_en
     assert all(e.modelled_torque == e.modelled_torque for e in estimates)  # finite, not NaN
     assert {p.name for p in (tmp_path / "logs").iterdir()} == {
         "rig_sim.log", "can_bridge.log", "estimator.log", "controller.log"}
+
+
+@pytest.mark.ros
+def test_clutch_up_respawns_a_node_that_exits_after_its_delay(tmp_path, ros_env):
+    """respawn/respawn_delay/respawn_max_retries: a player without a bag exits at once."""
+    launch = tmp_path / "r.launch.xml"
+    launch.write_text(
+        "<launch><node pkg='clutch_ros' exec='bag_player' name='player' namespace='rig' "
+        "respawn='true' respawn_delay='1.0' respawn_max_retries='2'>"
+        f"<param name='player.bag' value='{tmp_path / 'no_such_bag'}'/></node></launch>")
+    began = time.monotonic()
+    done = subprocess.run([sys.executable, "-m", "clutch_ros.cli", "up", str(launch),
+                           "--log-dir", str(tmp_path / "logs")], cwd=tmp_path, env=ros_env,
+                          capture_output=True, text=True, timeout=120)
+    took = time.monotonic() - began
+    assert done.returncode == 1, done.stderr  # the third exit ends the launch
+    assert done.stderr.count("started /rig/player (bag_player") == 3, done.stderr
+    assert done.stderr.count("node /rig/player exited with code") == 2, done.stderr
+    assert done.stderr.count("respawning in 1 s") == 2, done.stderr
+    assert took >= 2.0  # two respawn delays were waited (a lower bound holds under load)
+    assert sorted(p.name for p in (tmp_path / "logs").iterdir()) == [
+        "rig.player.2.log", "rig.player.3.log", "rig.player.log"]
+    assert "no_such_bag" in (tmp_path / "logs" / "rig.player.2.log").read_text()

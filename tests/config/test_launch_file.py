@@ -1,0 +1,162 @@
+"""The launch-file reader of ``clutch up`` against what the real ``ros2 launch`` gives each node.
+
+``data/expected_real_launch.json`` holds, per test launch file and node, the command line and
+the resulting parameters that ros2/launch + launch_ros produced (how: its ``_how_obtained``).
+``clutch up --print --json`` must give every node the same name, namespace, arguments,
+parameter sources in the same order, the same resulting parameters and the same remappings;
+a node launch respawned must be a respawning node here, with the delay launch waited.
+"""
+
+import json
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from clutch_ros.config.launch_file import LaunchFileError, load_launch, package_share
+from tests.conftest import REPO
+
+DATA = REPO / "tests" / "config" / "data"
+EXPECTED = json.loads((DATA / "expected_real_launch.json").read_text())["cases"]
+
+
+def _clean(value):
+    """Write absolute paths as the expected data does."""
+    if isinstance(value, str):
+        return value.replace(str(DATA.resolve()), "$(dirname)") \
+            .replace(str(package_share()), "$(find-pkg-share clutch_ros)")
+    return value
+
+
+def _clutch_print(name: str) -> dict[str, dict]:
+    done = subprocess.run([sys.executable, "-m", "clutch_ros.cli", "up", str(DATA / name),
+                           "--print", "--json"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    return {n["name"]: n for n in json.loads(done.stdout)}
+
+
+def _real_sources(ros_args: list[str]) -> tuple[list, list]:
+    """Split launch's ROS block into parameter sources (in order) and -r remappings."""
+    sources, remaps = [], []
+    for flag, value in zip(ros_args[::2], ros_args[1::2], strict=True):
+        if flag == "<launch_params_file>":  # one <param name= value=>: a one-key YAML file
+            body = next(iter(yaml.safe_load(value).values()))["ros__parameters"]
+            sources += [("value", k, v) for k, v in body.items()]
+        elif flag == "--params-file":
+            sources.append(("file", value))
+        else:
+            assert flag == "-r", flag
+            remaps.append(value)
+    return sources, remaps
+
+
+def _clutch_sources(args: list[str]) -> tuple[list, list, list]:
+    """Split clutch's arguments into head (up to the last --ros-args), sources, remaps."""
+    last = len(args) - args[::-1].index("--ros-args")
+    sources, remaps = [], []
+    for flag, value in zip(args[last::2], args[last + 1::2], strict=True):
+        if flag == "-p":
+            name, _, text = value.partition(":=")
+            sources.append(("value", name, yaml.safe_load(text)))
+        elif flag == "--params-file":
+            sources.append(("file", _clean(value)))
+        else:
+            assert flag == "-r", flag
+            remaps.append(value)
+    return args[:last], sources, remaps
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_clutch_up_print_gives_each_node_what_ros2_launch_gives(name):
+    expected = EXPECTED[name]
+    got = _clutch_print(name)
+    assert sorted(got) == sorted(expected)
+    for full_name, real in expected.items():
+        node = got[full_name]
+        assert node["executable"] == real["exe"], full_name
+        head, sources, remaps = _clutch_sources(node["args"])
+        real_sources, real_remaps = _real_sources(real["ros_args"])
+        assert head == real["head"], full_name
+        assert sources == real_sources, full_name  # same parameters, same document order
+        assert remaps == real_remaps, full_name  # __node, __ns, then <remap>s
+        params = {k: _clean(v) for k, v in node["parameters"].items()}
+        assert params == real["parameters"], full_name
+        assert node["respawn"] == (real["starts"] > 1), full_name
+        for gap in real["start_gaps_s"]:  # launch waited respawn_delay (+ its own latency)
+            assert node["respawn_delay"] <= gap < node["respawn_delay"] + 0.3, full_name
+
+
+def test_the_cases_cover_the_issue():
+    """Group/push-ros-namespace, two includes, respawn, document order, typed values."""
+    group = EXPECTED["group_ns.launch.xml"]
+    assert {"/rigA/est", "/rigA/sub/inner/ctl", "/abs/rec", "/rigA/sub/player"} <= set(group)
+    est = group["/rigA/est"]["parameters"]
+    assert est["estimator.window"] == 12  # a <param> after the file wins over it
+    assert est["diagnostics.hardware_id"] == "from-file"  # the file after the <param> wins
+    assert est["can.channel"] == 0 and est["can.channel_text"] == "0"
+    includes = EXPECTED["two_includes.launch.xml"]
+    assert {"/left/bridge", "/left/controller", "/right/bridge"} <= set(includes)
+    assert "/right/controller" not in includes
+    respawned = EXPECTED["respawn.launch.xml"]["/rig/est"]
+    assert respawned["starts"] >= 3 and respawned["head"][:2] == ["--extra", "1"]
+
+
+def test_values_scope_like_launch():
+    desc = load_launch(DATA / "two_includes.launch.xml", {"rate": "20"})
+    rates = {n.full_name: dict(n.params).get("bridge.rate") for n in desc.nodes}
+    assert rates["/left/bridge"] == 20  # the top-level value beats the included default
+    assert rates["/right/bridge"] == 200  # the <include>'s <arg> "$(var rate)0"
+    assert desc.values["last_prefix"] == "right"  # an include is not a scope
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("<launch><arg name='a'/></launch>", "x.launch.xml:1: <arg>: argument a is required"),
+    ("<launch>\n<set_parameter name='a' value='1'/></launch>",
+     "x.launch.xml:2: <set_parameter>: unsupported element"),
+    ("<launch><group forwarding='false'/></launch>", "forwarding=\"false\" is not supported"),
+    ("<launch><group><push-ros-namespace ns='a'/></group></launch>",
+     "<push-ros-namespace>: unsupported attribute(s) ns"),
+    ("<launch><include file='x.launch.py'/></launch>", "only XML launch files"),
+    ("<launch><include file='/no/such.launch.xml'/></launch>", "not found"),
+    ("<launch><include file='$(filename)'/></launch>", "nested deeper than 20"),
+    ("<launch><include file='$(dirname)/y.launch.xml'><let name='a' value='1'/></include>"
+     "</launch>", "<let>: unsupported element inside <include>"),
+    ("<launch><node pkg='clutch_ros' exec='estimator' respawn_delay='$(env D 1)'/></launch>",
+     "respawn_delay takes a plain number"),
+    ("<launch><node pkg='clutch_ros' exec='estimator' respawn='maybe'/></launch>",
+     "respawn='maybe' is not true, false, 1 or 0"),
+    ("<launch><node pkg='clutch_ros' exec='estimator' launch-prefix='gdb'/></launch>",
+     "unsupported attribute(s) launch-prefix"),
+    ("<launch><node pkg='clutch_ros' exec='estimator'>\n<env name='A' value='1'/></node>"
+     "</launch>", "x.launch.xml:2: <env>: unsupported element inside <node>"),
+    ("<launch><node pkg='clutch_ros' exec='estimator'><param name='a' value='{b: 1}'/>"
+     "</node></launch>", "neither a scalar nor a non-empty list"),
+    ("<launch><node pkg='clutch_ros' exec='estimator'><param name='a' value='x' type='ints'/>"
+     "</node></launch>", "type='ints' is not supported"),
+    ("<launch><node pkg='clutch_ros' exec='$(eval 1)'/></launch>",
+     "unsupported substitution $(eval ...)"),
+    ("<launch><node pkg='clutch_ros' exec='$(var a'/></launch>", "unclosed substitution"),
+])
+def test_unsupported_or_bad_elements_are_named(tmp_path, text, message):
+    path = tmp_path / "x.launch.xml"
+    path.write_text(text)
+    (tmp_path / "y.launch.xml").write_text("<launch/>")
+    with pytest.raises(LaunchFileError) as err:
+        load_launch(path)
+    assert message in str(err.value)
+
+
+def test_substitutions_quote_nest_and_find_files(tmp_path, monkeypatch):
+    monkeypatch.setenv("CLUTCH_TEST_WHICH", "b")
+    monkeypatch.delenv("CLUTCH_TEST_UNSET", raising=False)
+    path = tmp_path / "x.launch.xml"
+    path.write_text(
+        "<launch><let name='b' value='bee'/>"
+        "<node pkg='clutch_ros' exec='estimator' name=\"n$(optenv CLUTCH_TEST_UNSET)\">"
+        "<param name='p' value=\"$(var $(env CLUTCH_TEST_WHICH))\"/>"
+        "<param name='q' value=\"$(env CLUTCH_TEST_UNSET 'a b')\"/>"
+        "<param name='d' value='$(dirname)'/></node></launch>")
+    node = load_launch(path).nodes[0]
+    assert node.name == "n"
+    assert node.params == [("p", "bee"), ("q", "a b"), ("d", str(tmp_path.resolve()))]
