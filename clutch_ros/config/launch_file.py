@@ -131,6 +131,9 @@ class _Reader:
         if self.depth > MAX_INCLUDE_DEPTH:
             raise LaunchFileError(f"{path}: includes nested deeper than {MAX_INCLUDE_DEPTH} "
                                   "(an include loop?)")
+        if path.suffix in (".py", ".yaml", ".yml"):
+            raise LaunchFileError(f"{path}: only XML launch files can be read here (not "
+                                  f"{path.suffix})")
         root = read_xml(path)
         check_attrs(root, Where(path, root.line, "launch"), {"version"}, set())
         self.children(root, path, scope)
@@ -205,8 +208,6 @@ class _Reader:
             if {"if", "unless"} & set(child.attrib):
                 raise LaunchFileError(f"{cwhere}: if/unless are not supported here")
             values.append((child, cwhere))
-        if not file.name.endswith(".xml"):
-            raise LaunchFileError(f"{where}: {file}: only XML launch files can be included")
         if not file.is_file():
             raise LaunchFileError(f"{where}: included launch file {file} not found")
         for child, cwhere in values:

@@ -117,7 +117,7 @@ def test_values_scope_like_launch():
     ("<launch><group forwarding='false'/></launch>", "forwarding=\"false\" is not supported"),
     ("<launch><group><push-ros-namespace ns='a'/></group></launch>",
      "<push-ros-namespace>: unsupported attribute(s) ns"),
-    ("<launch><include file='x.launch.py'/></launch>", "only XML launch files"),
+    ("<launch><include file='$(dirname)/x.launch.py'/></launch>", "only XML launch files"),
     ("<launch><include file='/no/such.launch.xml'/></launch>", "not found"),
     ("<launch><include file='$(filename)'/></launch>", "nested deeper than 20"),
     ("<launch><include file='$(dirname)/y.launch.xml'><let name='a' value='1'/></include>"
@@ -142,6 +142,7 @@ def test_unsupported_or_bad_elements_are_named(tmp_path, text, message):
     path = tmp_path / "x.launch.xml"
     path.write_text(text)
     (tmp_path / "y.launch.xml").write_text("<launch/>")
+    (tmp_path / "x.launch.py").write_text("")
     with pytest.raises(LaunchFileError) as err:
         load_launch(path)
     assert message in str(err.value)
@@ -160,3 +161,21 @@ def test_substitutions_quote_nest_and_find_files(tmp_path, monkeypatch):
     node = load_launch(path).nodes[0]
     assert node.name == "n"
     assert node.params == [("p", "bee"), ("q", "a b"), ("d", str(tmp_path.resolve()))]
+
+
+def test_relative_include_is_relative_to_the_working_directory_and_groups_take_if(
+        tmp_path, monkeypatch):
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "inner.launch.xml").write_text(
+        "<launch><arg name='ns'/><group if='$(var on)'><push-ros-namespace namespace='$(var ns)'/>"
+        "<node pkg='clutch_ros' exec='estimator' name='e'/></group></launch>")
+    top = tmp_path / "sub" / "top.launch.xml"
+    top.write_text("<launch><arg name='on' default='1'/>"
+                   "<include file='sub/inner.launch.xml'><arg name='ns' value='a'/></include>"
+                   "</launch>")
+    monkeypatch.chdir(tmp_path)
+    assert [n.full_name for n in load_launch(top).nodes] == ["/a/e"]
+    assert load_launch(top, {"on": "0"}).nodes == []
+    monkeypatch.chdir(tmp_path / "sub")  # the same relative path now names nothing
+    with pytest.raises(LaunchFileError, match="included launch file sub/inner.launch.xml"):
+        load_launch(top)
