@@ -92,6 +92,9 @@ def parse_overrides(items: list[str]) -> dict[str, str]:
 
 def read_xml(path: Path) -> Element:
     """Parse ``path`` into :class:`Element` objects that know their line numbers."""
+    if path.suffix in (".py", ".yaml", ".yml"):
+        raise LaunchFileError(f"{path}: only XML launch files can be read here (not "
+                              f"{path.suffix})")
     parser = expat.ParserCreate()
     stack: list[Element] = []
     roots: list[Element] = []
@@ -131,9 +134,6 @@ class _Reader:
         if self.depth > MAX_INCLUDE_DEPTH:
             raise LaunchFileError(f"{path}: includes nested deeper than {MAX_INCLUDE_DEPTH} "
                                   "(an include loop?)")
-        if path.suffix in (".py", ".yaml", ".yml"):
-            raise LaunchFileError(f"{path}: only XML launch files can be read here (not "
-                                  f"{path.suffix})")
         root = read_xml(path)
         check_attrs(root, Where(path, root.line, "launch"), {"version"}, set())
         self.children(root, path, scope)
@@ -210,6 +210,12 @@ class _Reader:
             values.append((child, cwhere))
         if not file.is_file():
             raise LaunchFileError(f"{where}: included launch file {file} not found")
+        given = [substitute(c.attrib["name"], scope.variables, w) for c, w in values]
+        for arg in required_args(read_xml(file)):
+            if arg.attrib["name"] not in given:
+                raise LaunchFileError(f"{where}: {file} requires argument "
+                                      f"{arg.attrib['name']}: give it as <arg> of the <include> "
+                                      "(ros2 launch does not take it from the including file)")
         for child, cwhere in values:
             name = substitute(child.attrib["name"], scope.variables, cwhere)
             scope.variables[name] = substitute(child.attrib["value"], scope.variables, cwhere)
@@ -218,6 +224,20 @@ class _Reader:
     def on_node(self, elem, where, path, scope) -> None:
         entry = node_entry(elem, where, scope.variables, scope.namespace)
         self.nodes.append(entry)
+
+
+def required_args(parent: Element):
+    """Yield the unconditional ``<arg>``s without default (groups searched, not includes).
+
+    ``ros2 launch`` requires an ``<include>`` to name each of them in its own ``<arg>``s.
+    """
+    for elem in parent.children:
+        if {"if", "unless"} & set(elem.attrib):
+            continue
+        if elem.tag == "arg" and "default" not in elem.attrib and "name" in elem.attrib:
+            yield elem
+        elif elem.tag == "group":
+            yield from required_args(elem)
 
 
 def load_launch(path: str | Path, overrides: dict[str, str] | None = None) -> LaunchDescription:

@@ -176,6 +176,11 @@ def test_relative_include_is_relative_to_the_working_directory_and_groups_take_i
     monkeypatch.chdir(tmp_path)
     assert [n.full_name for n in load_launch(top).nodes] == ["/a/e"]
     assert load_launch(top, {"on": "0"}).nodes == []
+    missing = tmp_path / "sub" / "missing.launch.xml"  # ns set, but not by the <include>
+    missing.write_text("<launch><let name='ns' value='b'/><arg name='on' default='1'/>"
+                       "<include file='sub/inner.launch.xml'/></launch>")
+    with pytest.raises(LaunchFileError, match="requires argument ns: give it as <arg>"):
+        load_launch(missing)
     monkeypatch.chdir(tmp_path / "sub")  # the same relative path now names nothing
     with pytest.raises(LaunchFileError, match="included launch file sub/inner.launch.xml"):
         load_launch(top)
