@@ -12,8 +12,10 @@ log lines are printed) and the others are stopped. Ctrl-C or SIGTERM stops every
 of this shell (``ROS_DOMAIN_ID``, ``ROS_AUTOMATIC_DISCOVERY_RANGE`` as set).
 
 LAUNCHFILE is a path, or the name of a file in the package's ``launch/`` directory
-(``clutch up sim.launch.xml``). ``--print`` lists the node command lines and exits
-(``--json``: also each node's resulting parameters and respawn settings).
+(``clutch up sim.launch.xml``). Each ``<param name= value=>`` is passed in a parameter file
+of its own, as ``ros2 launch`` does (``<log dir>/params/``). ``--print`` lists the node
+command lines and exits (parameter files in a new ``/tmp/clutch_up_params_*``; ``--json``:
+also each node's resulting parameters and respawn settings).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from __future__ import annotations
 import shlex
 import signal
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -116,8 +119,9 @@ def run(args) -> int:
         return 0
     _check(description)
     if args.print_only:
+        param_dir = Path(tempfile.mkdtemp(prefix="clutch_up_params_"))  # kept, as launch does
         commands: list[dict[str, Any]] = [
-            {"name": n.full_name, "executable": n.executable, "args": n.ros_args(),
+            {"name": n.full_name, "executable": n.executable, "args": n.ros_args(param_dir),
              "parameters": n.parameters(), "respawn": n.respawn,
              "respawn_delay": n.respawn_delay, "respawn_max_retries": n.respawn_max_retries}
             for n in description.nodes]
@@ -167,7 +171,8 @@ class _Running:
 
     def start(self) -> None:
         name = self.node.full_name
-        self.proc = NodeProcess(name.strip("/").replace("/", "."), self.node.ros_args(),
+        self.proc = NodeProcess(name.strip("/").replace("/", "."),
+                                self.node.ros_args(self.log_dir / "params"),
                                 self.env, self.log_dir, executable=self.node.executable)
         self.restart_at = None
         _say(f"started {name} ({self.node.executable}, pid {self.proc.pid}), log "

@@ -2,27 +2,32 @@
 
 Read by :mod:`clutch_ros.config.launch_file`. The command line follows launch_ros's Node:
 ``EXEC [args] [--ros-args ROS_ARGS] --ros-args [-r __node:=NAME] [-r __ns:=NS]`` then the
-parameters in document order, then the remappings. ``ros2 launch`` writes each
-``<param name= value=>`` to a temporary ``--params-file``; here it is the equivalent
-``-p name:=value`` (same typed value, same place in the order: for rcl both kinds of argument
-are applied in command-line order, a later one winning).
+parameters in document order, then the remappings. Like ``ros2 launch``, each
+``<param name= value=>`` becomes a parameter file of its own (``--params-file``) whose section
+is the node's full name (``/**`` when name or namespace is not set), and ``<param from=>`` is
+passed as it is. The order and the section names matter: rcl keeps one parameter table per
+section, in the order the sections first appear, and rclpy applies the matching tables in that
+order; so a ``-p name:=value`` (a ``/**`` entry) would not give what ``ros2 launch`` gives.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
+
+import yaml
 
 from clutch_ros.config.errors import LaunchFileError
 from clutch_ros.config.launch_subst import (
     Where,
     check_attrs,
-    param_text,
     substitute,
     truth,
     typed_value,
 )
-from clutch_ros.config.params_file import load_flat
+from clutch_ros.config.params_file import flatten, load_yaml
 
 __all__ = ["LaunchArg", "NodeEntry", "absolute_namespace", "node_entry", "prefix_namespace"]
 
@@ -46,7 +51,8 @@ class NodeEntry:
 
     ``namespace`` is None when neither the node nor an enclosing ``push-ros-namespace`` sets
     one (no ``__ns`` remapping: the node's own default, the root). ``parameter_args`` holds
-    ``("file", path)`` and ``("value", name, value)`` in document order.
+    ``("file", path)`` and ``("values", [(name, value), ...])`` (one ``<param>``) in
+    document order.
     """
 
     pkg: str
@@ -69,15 +75,23 @@ class NodeEntry:
     @property
     def params(self) -> list[tuple[str, Any]]:
         """Return the single parameters (name, typed value) in document order."""
-        return [(p[1], p[2]) for p in self.parameter_args if p[0] == "value"]
+        return [pair for item in self.parameter_args if item[0] == "values" for pair in item[1]]
 
     @property
     def param_files(self) -> list[str]:
         """Return the parameter files in document order."""
         return [p[1] for p in self.parameter_args if p[0] == "file"]
 
-    def ros_args(self) -> list[str]:
-        """Return the arguments ``ros2 launch`` would give the node (after the executable)."""
+    @property
+    def section(self) -> str:
+        """Return the section ``ros2 launch`` writes this node's ``<param>`` values under."""
+        return self.full_name if None not in (self.name, self.namespace) else "/**"
+
+    def ros_args(self, param_dir: Path) -> list[str]:
+        """Return the node's arguments (after the executable), as ``ros2 launch`` gives them.
+
+        Writes the parameter file of each ``<param>`` into ``param_dir``.
+        """
         args = list(self.arguments)
         if self.ros_arguments:
             args += ["--ros-args", *self.ros_arguments]
@@ -86,27 +100,51 @@ class NodeEntry:
             args += ["-r", f"__node:={self.name}"]
         if self.namespace is not None:
             args += ["-r", f"__ns:={self.namespace}"]
-        for item in self.parameter_args:
-            if item[0] == "file":
-                args += ["--params-file", item[1]]
-            else:
-                args += ["-p", f"{item[1]}:={param_text(item[2])}"]
+        stem = self.full_name.strip("/").replace("/", ".")
+        for index, item in enumerate(self.parameter_args, start=1):
+            path = item[1]
+            if item[0] == "values":
+                path = Path(param_dir) / f"{stem}.{index}.yaml"
+                path.parent.mkdir(parents=True, exist_ok=True)
+                body = {self.section: {"ros__parameters": dict(item[1])}}
+                path.write_text(yaml.safe_dump(body, default_flow_style=False))
+            args += ["--params-file", str(path)]
         for src, dst in self.remaps:
             args += ["-r", f"{src}:={dst}"]
         return args
 
     def parameters(self) -> dict[str, Any]:
-        """Return the parameters the node starts with: files and values in order, later wins.
+        """Return the parameters the node starts with, as rcl and rclpy resolve them.
 
-        A file contributes its ``/**`` section and the sections naming this node.
+        One table per section (``/**``, ``/**/name``, the full name ...) that matches the
+        node, in the order the sections first appear; later entries of a table win, and the
+        tables are applied in that order.
         """
-        out: dict[str, Any] = {}
+        tables: dict[str, dict[str, Any]] = {}
         for item in self.parameter_args:
-            if item[0] == "file":
-                out.update(load_flat(item[1], self.full_name))
-            else:
-                out[item[1]] = item[2]
+            if item[0] == "values":
+                tables.setdefault(self.section, {}).update(item[1])
+                continue
+            data = load_yaml(item[1], "parameter file")
+            if not isinstance(data, dict):
+                raise LaunchFileError(f"{item[1]}: not a ROS 2 parameter file")
+            for key, body in data.items():
+                if _section_matches(str(key), self.full_name):
+                    params = (body or {}).get("ros__parameters", {})
+                    tables.setdefault(str(key), {}).update(flatten(params, source=item[1]))
+        out: dict[str, Any] = {}
+        for table in tables.values():
+            out.update(table)
         return out
+
+
+def _section_matches(section: str, full_name: str) -> bool:
+    """Match a section as rcl does: ``/**`` any namespaces, ``*`` one name, relative: never."""
+    if not section.startswith("/"):
+        return False
+    pattern = "".join("(/[^/]+)*" if part == "**" else "/" + re.escape(part).replace(
+        r"\*", "[^/]+") for part in section.strip("/").split("/"))
+    return re.fullmatch(pattern, full_name) is not None
 
 
 def prefix_namespace(base: str | None, ns: str | None) -> str | None:
@@ -159,8 +197,7 @@ def node_entry(elem, where: Where, variables: dict[str, str], pushed_ns: str | N
             entry.parameter_args.append(("file", substitute(child.attrib["from"], variables,
                                                             cwhere)))
         elif child.tag == "param":
-            for name, value in _params(child, cwhere, variables, ""):
-                entry.parameter_args.append(("value", name, value))
+            entry.parameter_args.append(("values", _params(child, cwhere, variables, "")))
         elif child.tag == "remap":
             check_attrs(child, cwhere, {"from", "to"}, {"from", "to"})
             entry.remaps.append((substitute(child.attrib["from"], variables, cwhere),

@@ -28,7 +28,7 @@ import yaml
 from clutch_ros.config.errors import LaunchFileError
 from clutch_ros.config.presets import params_dir
 
-__all__ = ["PACKAGE", "Where", "check_attrs", "package_share", "param_text", "substitute", "truth",
+__all__ = ["PACKAGE", "Where", "check_attrs", "package_share", "substitute", "truth",
            "typed_value"]
 
 PACKAGE = "clutch_ros"
@@ -170,12 +170,6 @@ def typed_value(text: str, type_id: str | None, where: Where, name: str) -> Any:
         return value
     raise LaunchFileError(f"{where}: parameter {name}: {text!r} is neither a scalar nor a "
                           "non-empty list of one type (give type=\"str\" for a string)")
-
-
-def param_text(value: Any) -> str:
-    """Return ``value`` as the YAML text of ``-p name:=TEXT`` that reads back as ``value``."""
-    return yaml.safe_dump(value, default_flow_style=True, width=1 << 20).strip() \
-        .removesuffix("...").strip()
 
 
 def check_attrs(elem, where: Where, allowed: set[str], required: set[str]) -> None:

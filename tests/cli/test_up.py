@@ -83,13 +83,16 @@ def test_every_parameter_is_declared_and_every_parameter_file_loads():
                 load_params(rig_file)
 
 
-def test_arguments_substitute_into_the_command_lines():
+def test_arguments_substitute_into_the_command_lines(tmp_path):
     desc = load_launch(REPO / "launch" / "rig.launch.xml",
                        {"interface": "pcan", "channel": "PCAN_USBBUS1", "namespace": "/rig1"})
     bridge = next(n for n in desc.nodes if n.executable == "can_bridge")
-    args = bridge.ros_args()
+    args = bridge.ros_args(tmp_path)
     assert args[:5] == ["--ros-args", "-r", "__node:=can_bridge", "-r", "__ns:=/rig1"]
-    assert "can.interface:=pcan" in args and "can.channel:=PCAN_USBBUS1" in args
+    assert args[5::2] == ["--params-file"] * 5  # one file per <param>, as ros2 launch writes
+    params = bridge.parameters()
+    assert params["can.interface"] == "pcan" and params["can.channel"] == "PCAN_USBBUS1"
+    assert load_flat(args[6], "/rig1/can_bridge") == {"can.interface": "pcan"}
     assert bridge.full_name == "/rig1/can_bridge"
     assert [n.executable for n in desc.nodes] == ["can_bridge", "estimator", "controller"]
     est = next(n for n in desc.nodes if n.executable == "estimator")
@@ -165,7 +168,7 @@ def test_clutch_up_sim_brings_up_the_chain_and_stops_on_sigterm(tmp_path, ros_en
             os.kill(pid, 0)
     assert "all nodes stopped (exit code 0)" in err
     assert all(e.modelled_torque == e.modelled_torque for e in estimates)  # finite, not NaN
-    assert {p.name for p in (tmp_path / "logs").iterdir()} == {
+    assert {p.name for p in (tmp_path / "logs").glob("*.log")} == {
         "rig_sim.log", "can_bridge.log", "estimator.log", "controller.log"}
 
 
@@ -187,6 +190,6 @@ def test_clutch_up_respawns_a_node_that_exits_after_its_delay(tmp_path, ros_env)
     assert done.stderr.count("node /rig/player exited with code") == 2, done.stderr
     assert done.stderr.count("respawning in 1 s") == 2, done.stderr
     assert took >= 2.0  # two respawn delays were waited (a lower bound holds under load)
-    assert sorted(p.name for p in (tmp_path / "logs").iterdir()) == [
+    assert sorted(p.name for p in (tmp_path / "logs").glob("*.log")) == [
         "rig.player.2.log", "rig.player.3.log", "rig.player.log"]
     assert "no_such_bag" in (tmp_path / "logs" / "rig.player.2.log").read_text()
