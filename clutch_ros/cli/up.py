@@ -14,8 +14,9 @@ of this shell (``ROS_DOMAIN_ID``, ``ROS_AUTOMATIC_DISCOVERY_RANGE`` as set).
 LAUNCHFILE is a path, or the name of a file in the package's ``launch/`` directory
 (``clutch up sim.launch.xml``). Each ``<param name= value=>`` is passed in a parameter file
 of its own, as ``ros2 launch`` does (``<log dir>/params/``). ``--print`` lists the node
-command lines and exits (parameter files in a new ``/tmp/clutch_up_params_*``; ``--json``:
-also each node's resulting parameters and respawn settings).
+command lines and exits (parameter files in ``<log dir>/params`` with ``--log-dir``, else in a
+new ``/tmp/clutch_up_params_*``; ``--json``: also each node's resulting parameters and
+respawn settings).
 """
 
 from __future__ import annotations
@@ -119,7 +120,8 @@ def run(args) -> int:
         return 0
     _check(description)
     if args.print_only:
-        param_dir = Path(tempfile.mkdtemp(prefix="clutch_up_params_"))  # kept, as launch does
+        param_dir = (Path(args.log_dir) / "params" if args.log_dir  # kept, as launch does
+                     else Path(tempfile.mkdtemp(prefix="clutch_up_params_")))
         commands: list[dict[str, Any]] = [
             {"name": n.full_name, "executable": n.executable, "args": n.ros_args(param_dir),
              "parameters": n.parameters(), "respawn": n.respawn,

@@ -29,9 +29,10 @@ def _clean(value):
     return value
 
 
-def _clutch_print(name: str) -> dict[str, dict]:
+def _clutch_print(name: str, log_dir) -> dict[str, dict]:
     done = subprocess.run([sys.executable, "-m", "clutch_ros.cli", "up", str(DATA / name),
-                           "--print", "--json"], capture_output=True, text=True, timeout=60)
+                           "--print", "--json", "--log-dir", str(log_dir)],
+                          capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     return {n["name"]: n for n in json.loads(done.stdout)}
 
@@ -46,7 +47,7 @@ def _sources(ros_args: list[str]) -> tuple[list, list]:
     for flag, value in zip(ros_args[::2], ros_args[1::2], strict=True):
         if flag == "<launch_params_file>":
             sources.append(("values", yaml.safe_load(value)))
-        elif flag == "--params-file" and "clutch_up_params_" in value:
+        elif flag == "--params-file" and "/logs/params/" in value:  # clutch's, see below
             sources.append(("values", yaml.safe_load(open(value).read())))
         elif flag == "--params-file":
             sources.append(("file", _clean(value)))
@@ -57,9 +58,9 @@ def _sources(ros_args: list[str]) -> tuple[list, list]:
 
 
 @pytest.mark.parametrize("name", sorted(EXPECTED))
-def test_clutch_up_print_gives_each_node_what_ros2_launch_gives(name):
+def test_clutch_up_print_gives_each_node_what_ros2_launch_gives(name, tmp_path):
     expected = EXPECTED[name]
-    got = _clutch_print(name)
+    got = _clutch_print(name, tmp_path / "logs")
     assert sorted(got) == sorted(expected)
     for full_name, real in expected.items():
         node = got[full_name]
@@ -179,12 +180,12 @@ def test_relative_include_is_relative_to_the_working_directory_and_groups_take_i
 
 @pytest.mark.ros
 @pytest.mark.parametrize("name", sorted(EXPECTED))
-def test_rcl_reads_clutch_up_arguments_as_the_parameters_ros2_launch_gives(name):
+def test_rcl_reads_clutch_up_arguments_as_the_parameters_ros2_launch_gives(name, tmp_path):
     """The last mile: rcl itself parses clutch's -p/--params-file into the same values."""
     import rclpy
     from rclpy.node import Node
 
-    got = _clutch_print(name)
+    got = _clutch_print(name, tmp_path / "logs")
     context = rclpy.context.Context()
     rclpy.init(context=context)
     try:
