@@ -18,7 +18,9 @@ import importlib
 
 from rclpy.node import Node
 
+from clutch_ros.config.presets import LAYOUT_NAME, share_file
 from clutch_ros.dashboard import TOPICS, DashboardServer, absolute
+from clutch_ros.errors import ConfigError
 from clutch_ros.nodes.diagnostics import Diagnostics
 from clutch_ros.nodes.loss_tracker import LossTracker
 from clutch_ros.nodes.parameters import ParamSpec, declare_params
@@ -58,7 +60,7 @@ class DashboardNode(Node):
                                      self._forwarder(name), qos, raw=True)
         self._diag = Diagnostics(self, self._diagnose)
         self.get_logger().info(f"Foxglove WebSocket server on {self._server.url} "
-                               f"({len(TOPICS)} channels)")
+                               f"({len(TOPICS)} channels){_layout_hint()}")
 
     def _forwarder(self, topic: str):
         publish = self._server.publish
@@ -80,6 +82,14 @@ class DashboardNode(Node):
     def close(self) -> None:
         """Stop the server (called by run_node at shutdown)."""
         self._server.close()
+
+
+def _layout_hint() -> str:
+    """Return "; layout PATH" of the shipped Foxglove layout, "" when the share is not found."""
+    try:
+        return f"; layout {share_file(LAYOUT_NAME)}"
+    except ConfigError:
+        return ""
 
 
 def _msg_class(typename: str):
