@@ -178,10 +178,12 @@ def test_node_exits_0_on_sigint_and_on_sigterm(node, ros_env, bag):
     signals = [signal.SIGINT] * sigint + [signal.SIGTERM] * sigterm
     rng.shuffle(signals)
     runs: list[_Run] = []
-    hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(HOGS)]
+    hogs: list[subprocess.Popen] = []
     with Harness(f"shutdown_{node}") as h:
         inputs = _Inputs(h)
         try:
+            hogs += [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+                     for _ in range(HOGS)]
             for first in range(0, len(signals), BATCH):
                 batch = [_start(node, first + i, signum, ros_env, bag, rng)
                          for i, signum in enumerate(signals[first:first + BATCH])]
