@@ -4,8 +4,12 @@ The imports come from an ast scan of every module under ``clutch_ros/`` (functio
 imports of optional packages included); each top-level module is mapped to its rosdep key
 by :data:`ROSDEP_KEYS` (the keys exist in the rosdistro database: ``rosdep/python.yaml``,
 ``rosdep/base.yaml`` or a ROS package name). A module without a rosdep key must be listed in
-:data:`PIP_ONLY` with the README's pip instruction. Both directions are checked: no import
-without a key, no declared key without an import.
+:data:`PIP_ONLY` with its pins, and the README's rig-PC section must install exactly those
+pins with ``pip install`` lines (plus the tested versions of the pip keys, :data:`PIP_KEYS`),
+at the versions ``requirements.txt`` pins. Both directions are checked: no import without a
+key or pip line, no declared key or pip line without an import. The README's rosdep and
+colcon commands name every package of the repository (rosdep and colcon look no deeper than
+a folder holding a package.xml, and ``msg_defs/`` is one inside ``clutch_ros``).
 """
 
 import ast
@@ -36,13 +40,20 @@ ROSDEP_KEYS = {
     "pytest": "python3-pytest",
     "hypothesis": "python3-hypothesis",
 }
-#: modules with no rosdep key: installed with pip as README.md says
-PIP_ONLY = {"asammdf": "asammdf==8.8.28", "foxglove": "foxglove-sdk==0.30.3",
-            "distributed": "distributed==2026.8.0", "numba": "numba==0.68.1"}
-#: modules the package imports only as what a declared package installs: module -> why
+#: modules with no rosdep key -> the pins the README's pip lines install
+PIP_ONLY = {
+    "lz4": ("lz4==4.4.5",),
+    "backports": ("backports.zstd==1.8.0",),
+    "asammdf": ("asammdf==8.8.28",),
+    "foxglove": ("foxglove-sdk==0.30.3",),
+    "distributed": ("dask==2026.8.0", "distributed==2026.8.0"),
+    "numba": ("numba==0.68.1",),
+}
+#: rosdep keys that rosdep installs with pip (newest version) -> their pip package, which the
+#: README pins at the tested version
+PIP_KEYS = {"python3-cantools-pip": "cantools", "python3-rosbags-pip": "rosbags"}
+#: modules the package imports only where the interpreter has them: module -> why
 PROVIDED = {
-    "lz4": "python3-rosbags-pip (a rosbags dependency; lz4-compressed MCAP chunks)",
-    "backports": "python3-rosbags-pip (backports.zstd, a rosbags dependency before 3.14)",
     "compression": "the standard library's compression.zstd from Python 3.14",
 }
 #: test-only keys (imported by tests/, not by the package)
@@ -94,9 +105,83 @@ def test_test_imports_have_test_keys():
             assert "test_depend" in declared.get(key, set()), key
 
 
-def test_pip_only_modules_are_in_the_readme_and_requirements():
-    readme = (REPO / "README.md").read_text()
-    requirements = (REPO / "requirements.txt").read_text().split()
-    for module, pin in PIP_ONLY.items():
-        assert pin in requirements, (module, pin)
-        assert f"pip install {pin}" in readme or pin in readme, module
+def _requirements() -> dict[str, str]:
+    """Return requirements.txt's pins as {distribution (lower case): version}."""
+    pins = {}
+    for line in (REPO / "requirements.txt").read_text().splitlines():
+        name, sep, version = line.split("#", 1)[0].strip().partition("==")
+        if sep:
+            pins[name.lower()] = version.split(";")[0].strip()
+    return pins
+
+
+def _rig_pc_section() -> str:
+    text = (REPO / "README.md").read_text()
+    return text.split("## On a rig PC with ROS 2 installed", 1)[1].split("\n## ", 1)[0]
+
+
+def _readme_commands(program: str) -> list[list[str]]:
+    """Return the README rig-PC lines that run ``program``, as words without the comment."""
+    out = []
+    for line in _rig_pc_section().splitlines():
+        words = line.split("#", 1)[0].split()
+        if words[:1] == [program]:
+            out.append(words)
+    return out
+
+
+def _readme_pip_pins() -> dict[str, str]:
+    """Return {distribution (lower case): version} of every README ``pip install`` line."""
+    pins = {}
+    for words in _readme_commands("pip"):
+        assert words[1] == "install", words
+        for item in words[2:]:
+            name, sep, version = item.partition("==")
+            assert sep, f"README pip line without a pin: {' '.join(words)}"
+            pins[name.lower()] = version
+    return pins
+
+
+def test_pip_only_modules_are_pinned_alike_in_the_readme_and_requirements():
+    readme, requirements = _readme_pip_pins(), _requirements()
+    unused = sorted(set(PIP_ONLY) - _imports(REPO / "clutch_ros"))
+    assert not unused, f"PIP_ONLY lists modules nothing imports: {unused}"
+    wanted = {pin for pins in PIP_ONLY.values() for pin in pins}
+    wanted |= {f"{pkg}=={requirements[pkg]}" for pkg in PIP_KEYS.values()}
+    stated = {f"{name}=={version}" for name, version in readme.items()}
+    assert stated == wanted, f"README pip lines {sorted(stated)} != wanted {sorted(wanted)}"
+    for pin in sorted(wanted):
+        name, _, version = pin.partition("==")
+        assert requirements.get(name.lower()) == version, f"requirements.txt lacks {pin}"
+
+
+def test_pip_keys_are_declared_and_pinned():
+    declared = _declared()
+    for key, package in PIP_KEYS.items():
+        assert key in declared, f"package.xml lacks {key}"
+        assert package in _readme_pip_pins(), f"README has no pinned pip line for {package}"
+    undeclared = sorted(k for k in declared if k.endswith("-pip") and k not in PIP_KEYS)
+    assert not undeclared, f"add these pip keys to PIP_KEYS: {undeclared}"
+
+
+def test_readme_rosdep_and_colcon_commands_name_every_package():
+    skip = {".venv", ".git", "build", "install", "log"}
+    packages = sorted(
+        "src/clutch_ros" + ("/" + str(p.parent.relative_to(REPO)) if p.parent != REPO else "")
+        for p in REPO.rglob("package.xml") if not skip & set(p.relative_to(REPO).parts))
+    assert packages == ["src/clutch_ros", "src/clutch_ros/msg_defs"], packages
+    rosdep = _readme_commands("rosdep")
+    colcon = _readme_commands("colcon")
+    assert {w[1] for w in rosdep} >= {"update", "check", "install"}, rosdep
+    assert any(w[1] == "build" for w in colcon), colcon
+    for words in rosdep + colcon:
+        if words[1] not in ("check", "install", "build"):
+            continue
+        option = "--paths" if words[0] == "colcon" else "--from-paths"
+        at = words.index(option)
+        named = []
+        for word in words[at + 1:]:
+            if word.startswith("-"):
+                break
+            named.append(word)
+        assert sorted(named) == packages, (words, packages)

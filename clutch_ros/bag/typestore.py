@@ -16,7 +16,6 @@ bytes.
 from __future__ import annotations
 
 import os
-import sys
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -89,9 +88,11 @@ def _source_msg_dir() -> Path:
 
 
 def _installed_msg_dirs() -> list[Path]:
-    """``share/clutch_msgs/msg`` below every ament prefix, then below ``sys.prefix``."""
+    """``share/clutch_msgs/msg`` below every ament prefix (the ament index's search path).
+
+    Never below Python's ``sys.prefix``: on a rig PC that is ``/usr``, not the colcon install.
+    """
     prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
-    prefixes.append(sys.prefix)
     return [Path(p) / "share" / PACKAGE / "msg" for p in prefixes]
 
 
@@ -100,7 +101,7 @@ def find_msg_dir(msg_dir: str | Path | None = None) -> Path:
 
     Search order: ``msg_dir`` if given; ``msg_defs/msg`` of the source checkout (the files
     the interface package is built from); ``share/clutch_msgs/msg`` under each
-    ``AMENT_PREFIX_PATH`` entry (a colcon install) and under ``sys.prefix`` (the venv).
+    ``AMENT_PREFIX_PATH`` entry (a colcon install, or the venv ``tools/bootstrap.sh`` set up).
 
     Raises:
         BagError: no directory with ``.msg`` files was found.

@@ -15,7 +15,6 @@ bytes 1..DLC-1. :func:`crc8_sae_j1850` implements it (check value of ``b"1234567
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,7 @@ import cantools.database
 
 from clutch_ros.canbus.errors import DbcError, EncodeError, FrameDecodeError
 from clutch_ros.canbus.units import UNIT_TO_SI
+from clutch_ros.config.presets import DBC_NAME, share_file
 from clutch_ros.errors import ConfigError
 
 __all__ = [
@@ -95,11 +95,11 @@ def format_frame_key(key: int) -> str:
 
 
 def default_dbc_path() -> Path:
-    """Return the path of the rig DBC (source tree ``params/rig.dbc`` or the installed share)."""
-    source = Path(__file__).resolve().parents[2] / "params" / "rig.dbc"
-    if source.is_file():
-        return source
-    return Path(sys.prefix) / "share" / "clutch_ros" / "params" / "rig.dbc"
+    """Return the path of the rig DBC ``params/rig.dbc`` (:func:`~.presets.share_file`).
+
+    The source checkout's, or the installed package's found through the ament index.
+    """
+    return share_file(DBC_NAME)
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,11 @@
-"""Where the shipped parameter presets and the rig DBC live (source tree or installed share).
+"""Where the package's installed data lives: presets, the rig DBC, the dashboard layout.
 
-Looked up in this order: ``$CLUTCH_ROS_PARAMS`` (a directory), the source tree's ``params/``
-next to this package, then ``share/clutch_ros/params`` of an installed (colcon) package found
-through the ament index.
+One lookup for every data file of ``share/clutch_ros`` (:func:`share_file`): the source
+checkout this module was imported from (its ``package.xml`` and ``params/``), else the
+installed package's share directory found through the ament index (``AMENT_PREFIX_PATH``, set
+by ``source install/setup.bash``), as ``ros2 launch``'s ``$(find-pkg-share clutch_ros)`` finds
+it. Never Python's ``sys.prefix``: on a rig PC that is ``/usr``, not the colcon install.
+``$CLUTCH_ROS_PARAMS`` (a directory) replaces ``params/``.
 """
 
 from __future__ import annotations
@@ -12,8 +15,10 @@ from pathlib import Path
 
 from clutch_ros.errors import ConfigError
 
-__all__ = ["params_dir", "preset_path", "default_preset", "PRESETS", "DBC_NAME"]
+__all__ = ["DBC_NAME", "LAYOUT_NAME", "PACKAGE", "PRESETS", "default_preset", "params_dir",
+           "preset_path", "share_dir", "share_file"]
 
+PACKAGE = "clutch_ros"
 #: Preset name -> file name in params/.
 PRESETS = {
     "flexiforce_8": "flexiforce_8.yaml",
@@ -22,32 +27,55 @@ PRESETS = {
     "rig_truth": "rig_truth.yaml",
 }
 DBC_NAME = "rig.dbc"
+#: The Foxglove layout shipped in params/.
+LAYOUT_NAME = "clutch_dashboard.json"
 
 
-def params_dir() -> Path:
-    """Return the directory holding the presets and ``rig.dbc``."""
-    env = os.environ.get("CLUTCH_ROS_PARAMS")
-    if env:
-        return Path(env)
-    source = Path(__file__).resolve().parents[2] / "params"
-    if source.is_dir():
+def share_dir() -> Path:
+    """Return the package's share directory (it holds ``params/`` and ``launch/``).
+
+    The source checkout this module runs from (a development install, ``--symlink-install``)
+    or ``share/clutch_ros`` of the installed package, through the ament index. Raises
+    :class:`ConfigError` when neither is found.
+    """
+    source = Path(__file__).resolve().parents[2]
+    if (source / "package.xml").is_file() and (source / "params").is_dir():
         return source
     try:
         # optional: only an installed (colcon) package has an ament index to look in
         from ament_index_python.packages import get_package_share_directory
 
-        return Path(get_package_share_directory("clutch_ros")) / "params"
+        return Path(get_package_share_directory(PACKAGE))
     except Exception as err:  # PackageNotFoundError, or ament_index not installed
-        raise ConfigError("cannot find the clutch_ros params directory; set "
-                          "CLUTCH_ROS_PARAMS") from err
+        raise ConfigError(f"cannot find the {PACKAGE} share directory: not a source checkout "
+                          f"and no {PACKAGE} in the ament index (AMENT_PREFIX_PATH="
+                          f"{os.environ.get('AMENT_PREFIX_PATH', '')!r}); source the "
+                          "workspace's install/setup.bash") from err
+
+
+def params_dir() -> Path:
+    """Return the directory holding the presets, ``rig.dbc`` and the dashboard layout."""
+    env = os.environ.get("CLUTCH_ROS_PARAMS")
+    if env:
+        return Path(env)
+    return share_dir() / "params"
+
+
+def share_file(name: str) -> Path:
+    """Return the path of ``params/<name>`` (``rig.dbc``, ``clutch_dashboard.json``, ...).
+
+    Found as :func:`params_dir` says. The path is returned whether or not the file exists:
+    the reader names it when it is missing.
+    """
+    return params_dir() / name
 
 
 def preset_path(name_or_path: str) -> Path:
     """Resolve a preset name (``flexiforce_8``, ``rig_truth``...) or a file path to a path."""
     if name_or_path in PRESETS:
-        return params_dir() / PRESETS[name_or_path]
+        return share_file(PRESETS[name_or_path])
     if name_or_path == "dbc":
-        return params_dir() / DBC_NAME
+        return share_file(DBC_NAME)
     path = Path(name_or_path)
     if not path.is_file():
         raise ConfigError(f"no such parameter file or preset: {name_or_path} "

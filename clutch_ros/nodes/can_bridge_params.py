@@ -30,7 +30,7 @@ from clutch_ros.canbus import PumpGateConfig
 from clutch_ros.canbus.pump_gate import PUMP_PERIOD
 from clutch_ros.canbus.signal_map import KEYS, SignalMap
 from clutch_ros.errors import ClutchError
-from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec
+from clutch_ros.nodes.parameters import DBC_FILE_PARAM, HARDWARE_ID_PARAM, ParamSpec
 
 __all__ = ["GATE_PARAMS", "LIVE", "PARAMS", "RENAMED", "check_change", "gate_config",
            "signal_specs"]
@@ -59,7 +59,7 @@ PARAMS = [
     _ro("can.fd", False, "open the bus in CAN FD mode" + _BUS),
     _ro("can.receive_own_messages", False, "receive frames this node sends" + _BUS),
     _ro("can.filters", [""], "acceptance filters 'ID:MASK[:x]'; empty: all frames" + _BUS),
-    _ro("bridge.dbc_file", "", "rig DBC; empty: the package's params/rig.dbc" + _DBC),
+    DBC_FILE_PARAM,
     ParamSpec("bridge.rate", 200.0, "rig_state publishing rate (at most)", "Hz", 1.0, 5000.0),
     ParamSpec("bridge.publish_on", "input_speed", "DBC message (or signal map key, e.g. "
               "input_speed: its message) whose arrival publishes rig_state; empty: a "

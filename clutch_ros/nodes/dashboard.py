@@ -27,8 +27,10 @@ from clutch_msgs.msg import TorqueRequest
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
+from clutch_ros.config.presets import LAYOUT_NAME, share_file
 from clutch_ros.dashboard import TOPICS, DashboardServer, absolute
 from clutch_ros.dashboard.client_publish import PublishGate
+from clutch_ros.errors import ConfigError
 from clutch_ros.nodes.dashboard_params import RosParameters
 from clutch_ros.nodes.diagnostics import Diagnostics
 from clutch_ros.nodes.loss_tracker import LossTracker
@@ -88,7 +90,7 @@ class DashboardNode(Node):
         publish = f"clients may publish on {self._gate.topic}" if self._gate else \
             "client publishing off"
         self.get_logger().info(f"Foxglove WebSocket server on {self._server.url} "
-                               f"({len(TOPICS)} channels; {publish})")
+                               f"({len(TOPICS)} channels; {publish}){_layout_hint()}")
 
     def _send_time(self) -> None:
         self._server.broadcast_time(self.get_clock().now().nanoseconds)
@@ -129,6 +131,14 @@ class DashboardNode(Node):
     def close(self) -> None:
         """Stop the server (called by run_node at shutdown)."""
         self._server.close()
+
+
+def _layout_hint() -> str:
+    """Return "; layout PATH" of the shipped Foxglove layout, "" when the share is not found."""
+    try:
+        return f"; layout {share_file(LAYOUT_NAME)}"
+    except ConfigError:
+        return ""
 
 
 def _msg_class(typename: str):

@@ -141,6 +141,8 @@ class EstimatorNode(Node):
         try:
             self._estimate(msg)
         except Exception as err:  # noqa: BLE001 - never die on one sample; diagnose it
+            if not self.context.ok():  # a signal ended the context mid-sample: no fault
+                return
             self._skip("internal_error", f"{type(err).__name__}: {err}")
 
     def _estimate(self, msg) -> None:

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
-__all__ = ["ParamSpec", "HARDWARE_ID_PARAM", "declare_params", "help_requested", "format_help"]
+__all__ = ["DBC_FILE_PARAM", "HARDWARE_ID_PARAM", "ParamSpec", "declare_params", "format_help",
+           "help_requested"]
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,14 @@ HARDWARE_ID_PARAM = ParamSpec(
     "diagnostics.hardware_id", "", "hardware_id of this node's /diagnostics status: the rig "
     "it serves (CAN interface:channel, or 'simulated rig'); empty: the node name; read-only: "
     "fixed for the node's life", read_only=True)
+
+
+#: The rig CAN database, the same parameter in every node that speaks the rig's bus
+#: (``can_bridge``, ``rig_sim``; the launch files pass both their ``dbc_file``).
+DBC_FILE_PARAM = ParamSpec(
+    "bridge.dbc_file", "", "rig DBC file; empty: the package's params/rig.dbc (the source "
+    "checkout's, or the installed share's found through the ament index); read-only: the "
+    "database is loaded and checked at configure (rig_sim: at start)", read_only=True)
 
 
 def declare_params(node, specs: Iterable[ParamSpec], overrides: dict | None = None) -> dict:

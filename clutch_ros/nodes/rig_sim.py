@@ -13,8 +13,10 @@ pump follows the bus. Otherwise a scripted run of the thesis (Tables 3-4):
 ``table3:SEQ:RPM`` (DBP), ``table4:SEQ`` (PBD), or ``closed_loop[:RPM,...[:SEGMENT_S]]``.
 Frames are stamped with the wall clock (like a real adapter's receive time).
 
-Only ``rig.slip_speed`` changes at run time (operator mode); the bus, the plant, the scenario,
-the step and the seed are read-only (fixed when the simulation starts). Its /diagnostics
+The rig's CAN database is ``bridge.dbc_file``, the bridge's parameter (empty: the package's
+``params/rig.dbc``). Only ``rig.slip_speed`` changes at run time (operator mode); the bus, the
+DBC, the plant, the scenario, the step and the seed are read-only (fixed when the simulation
+starts). Its /diagnostics
 ``hardware_id`` is ``simulated rig (interface:channel)``; it reports ``overruns`` and
 ``lost_time_s`` [s], the real time the loop dropped when it fell more than 0.1 s behind (a
 machine short of CPU: the simulated world then runs slower than real time), and is WARN in a
@@ -31,8 +33,9 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
 from clutch_ros.canbus import BusConfig, ReconnectingBus
+from clutch_ros.canbus.dbc import RigDatabase
 from clutch_ros.nodes.diagnostics import Diagnostics
-from clutch_ros.nodes.parameters import ParamSpec, declare_params
+from clutch_ros.nodes.parameters import DBC_FILE_PARAM, ParamSpec, declare_params
 from clutch_ros.nodes.runner import run_node
 from clutch_ros.rig import RigPlant, RigSimulator
 from clutch_ros.rig.can_io import RigCanPort
@@ -48,6 +51,7 @@ PARAMS = [
               f"{_AT_START}", read_only=True, dynamic_typing=True),
     ParamSpec("can.port", 43113, f"UDP port (udp_multicast only); {_AT_START}", "", 1, 65535,
               read_only=True),
+    DBC_FILE_PARAM,
     ParamSpec("rig.params_file", "rig_truth",
               "truth-plant parameter file or preset name; read-only: the plant is built at start",
               read_only=True),
@@ -101,8 +105,9 @@ class RigSimNode(Node):
             self._scenario = scenario_from_spec(cfg["rig.scenario"], repeat=cfg["rig.repeat"])
         else:
             self._scenario = _OperatorScenario(cfg["rig.slip_speed"])
+        database = RigDatabase(cfg["bridge.dbc_file"] or None)  # (before the bus is opened)
         self._bus = ReconnectingBus(BusConfig.from_params(cfg))
-        self._port = RigCanPort(self._bus)
+        self._port = RigCanPort(self._bus, database)
         self._sim = RigSimulator(plant, self._scenario, self._port, dt=cfg["rig.dt"],
                                  stamp_clock=time.time)
         self._stats = None
@@ -113,7 +118,8 @@ class RigSimNode(Node):
             f"simulated rig ({cfg['can.interface']}:{cfg['can.channel']})"))
         self._thread.start()
         self.get_logger().info(f"simulated rig running scenario '{self._scenario.name}' on "
-                               f"{cfg['can.interface']}:{cfg['can.channel']}")
+                               f"{cfg['can.interface']}:{cfg['can.channel']} with DBC "
+                               f"{database.path}")
 
     def _run(self) -> None:
         duration = math.inf if (self._scenario.repeat or self._scenario.duration == math.inf) \

@@ -2,14 +2,28 @@
 
 Every node's ``main(args=None)`` calls :func:`run_node`, which answers ``--help`` without
 starting ROS (listing every parameter with unit, range and default), spins the node and shuts
-down cleanly on SIGINT / SIGTERM.
+down cleanly on SIGINT / SIGTERM: exit 0, as ``ros2 launch`` expects of a node it stops.
+
+How a signal stops a node: rclpy's own handlers (``SignalHandlerOptions.ALL``) wake the
+executor and shut the context down from a thread of theirs, and the spin ends. rclpy's SIGINT
+handler also chains to the handler it found, Python's, which raises ``KeyboardInterrupt`` in
+the main thread at the next bytecode it runs, wherever that is; inside the Python code that
+rclpy's C++ calls (the message class that ``Subscription.take_message`` builds) pybind11
+turns that exception into ``RuntimeError: Unable to convert call argument '0' to Python
+object``, often before rclpy's thread has shut the context down: exit 1 (about one
+controller stop in seven, the controller taking three topics). So while a node runs, SIGINT
+and SIGTERM reach Python only as a note (:class:`_StopSignals`), never as an exception; the
+context shutdown is the one way a signal stops the node.
 """
 
 from __future__ import annotations
 
 import gc
+import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import rclpy
 from rclpy.exceptions import ParameterException
@@ -72,6 +86,34 @@ def _executor_option(argv: list[str]) -> tuple[str, list[str]]:
     return kind, out
 
 
+class _StopSignals:
+    """Python's SIGINT and SIGTERM handlers while a node runs: they note the signal, no more.
+
+    rclpy's handlers, installed over these by ``rclpy.init``, call them (chained) and do the
+    stopping; a signal that arrives before ``rclpy.init`` installed them is noted here
+    (:attr:`received`) and stops the node as soon as it is built. Installed only in the main
+    thread (the only one where Python allows it); :meth:`restore` puts the previous back.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.received: list[int] = []
+        self._previous: dict[int, Any] = {}
+        if threading.current_thread() is threading.main_thread():
+            for signum in self.SIGNALS:
+                self._previous[signum] = signal.signal(signum, self._note)
+
+    def _note(self, signum: int, _frame: Any) -> None:
+        self.received.append(signum)
+
+    def restore(self) -> None:
+        """Put back the handlers found at construction."""
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+
+
 def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[[], Node],
              args: Sequence[str] | None = None) -> int:
     """Answer --help, or init rclpy, build the node with ``factory`` and spin until shutdown.
@@ -84,16 +126,19 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
         sys.stdout.write(format_help(name, doc, [*specs, *REALTIME_PARAMS]))
         return 0
     executor_kind, argv = _executor_option(argv)
-
-
     # rclpy's own handlers (SignalHandlerOptions.ALL, the default) turn SIGINT and SIGTERM
-    # into a clean shutdown even while the executor waits in C; a Python-level handler would
-    # only run when some callback wakes the executor.
+    # into a clean shutdown even while the executor waits in C; Python's only take note
+    # (module docstring: a KeyboardInterrupt inside rclpy's C++ was an exit 1)
+    stop = _StopSignals()
     rclpy.init(args=[sys.argv[0], *argv])
     node: Node | None = None
     started = False
     try:
+        if stop.received:  # stopped before rclpy's handlers were there to do it
+            return 0
         node = factory()
+        if stop.received:  # (the context is shut down: nothing to spin)
+            return 0
         realtime = start_realtime(node)
         started = True
         # everything built so far lives as long as the node: out of the collector's sight, so
@@ -110,9 +155,8 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
-        # rclpy can raise from take_message when SIGINT shuts the context down while the
-        # executor takes a message (seen once in the controller under `clutch up`: exit 1);
-        # once the context is shut down that is the requested stop, not a failure
+        # rclpy raises RCLError (a RuntimeError) when a take, publish or timer meets the
+        # context that a signal shut down meanwhile: the requested stop, not a failure
         if rclpy.ok():
             raise
     except (ClutchError, ParameterException, ValueError) as err:
@@ -127,6 +171,7 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
                 close()
             node.destroy_node()
         rclpy.try_shutdown()
+        stop.restore()
     return 0
 
 

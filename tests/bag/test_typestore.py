@@ -177,6 +177,6 @@ def test_msg_dir_falls_back_to_an_installed_share(tmp_path, monkeypatch):
     monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "prefix"))
     assert ts.find_msg_dir() == share.resolve()
     monkeypatch.setenv("AMENT_PREFIX_PATH", str(tmp_path / "elsewhere"))
-    monkeypatch.setattr(ts.sys, "prefix", str(tmp_path / "elsewhere"))
+    monkeypatch.setattr(sys, "prefix", str(tmp_path / "prefix"))  # never searched (a rig PC's /usr)
     with pytest.raises(ts.BagError, match="no clutch_msgs .msg files found"):
         ts.find_msg_dir()
