@@ -24,7 +24,8 @@ Every element takes ``if=``/``unless=``. Elements:
 - ``<node pkg= exec= [name=] [namespace=] [args=] [ros_args=] [respawn=] [respawn_delay=]
   [respawn_max_retries=] [output=]>`` with ``<param name= value= [type=]/>``, nested
   ``<param name=><param .../></param>``, ``<param from=/>`` (a parameter file) and
-  ``<remap from= to=/>`` children. Parameters keep document order (a later one wins).
+  ``<remap from= to=/>`` children. Parameters keep document order and reach the node as with
+  ``ros2 launch`` (:mod:`clutch_ros.config.launch_node`).
 """
 
 from __future__ import annotations

@@ -5,8 +5,8 @@ quoted arguments allowed, e.g. ``$(env HOME '')`` or ``$(var $(var which))``):
 
 - ``$(var NAME)``: a launch configuration (``<arg>``, ``<let>``, ``name:=value``).
 - ``$(env NAME [DEFAULT])``, ``$(optenv NAME [DEFAULT])`` (unset without default: ``''``).
-- ``$(find-pkg-share PKG)``: ``clutch_ros`` only (the directory holding ``params/`` and
-  ``launch/``: the source tree or the installed ``share/clutch_ros``).
+- ``$(find-pkg-share PKG)``: ``clutch_ros`` only (:func:`clutch_ros.config.presets.share_dir`:
+  the source checkout, or the installed ``share/clutch_ros`` found through the ament index).
 - ``$(dirname)``, ``$(filename)``: the directory / path of the launch file being read.
 
 Typed values follow launch's rules: a ``<param value=>`` without ``type`` is read as YAML
@@ -26,12 +26,11 @@ from typing import Any
 import yaml
 
 from clutch_ros.config.errors import LaunchFileError
-from clutch_ros.config.presets import params_dir
+from clutch_ros.config.presets import PACKAGE, share_dir
 
 __all__ = ["PACKAGE", "Where", "check_attrs", "package_share", "substitute", "truth",
            "typed_value"]
 
-PACKAGE = "clutch_ros"
 SUPPORTED = ("var", "env", "optenv", "find-pkg-share", "dirname", "filename")
 _NAME = re.compile(r"[A-Za-z][\w-]*")
 
@@ -52,7 +51,7 @@ def package_share(pkg: str = PACKAGE) -> Path:
     """Return the share directory of ``pkg`` (``clutch_ros`` only; see module docstring)."""
     if pkg != PACKAGE:
         raise LaunchFileError(f"$(find-pkg-share {pkg}): only {PACKAGE} is known here")
-    return params_dir().parent
+    return share_dir()
 
 
 def substitute(text: str, variables: dict[str, str], where: Where) -> str:
