@@ -53,4 +53,12 @@ def build_parser(commands=None) -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """Run ``clutch`` with ``argv`` (default: sys.argv[1:]); return the exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    return dispatch(build_parser(_chosen(argv)).parse_args(argv))
+    parser = build_parser(_chosen(argv))
+    args, extra = parser.parse_known_args(argv)
+    # `clutch up FILE --print channel:=0`: launch arguments may follow options, as with
+    # `ros2 launch`; argparse stops collecting a positional list at the first option.
+    if extra and getattr(args, "command", None) == "up" and all(":=" in e for e in extra):
+        args.arguments = [*args.arguments, *extra]
+    elif extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    return dispatch(args)

@@ -193,3 +193,24 @@ def test_clutch_up_respawns_a_node_that_exits_after_its_delay(tmp_path, ros_env)
     assert sorted(p.name for p in (tmp_path / "logs").glob("*.log")) == [
         "rig.player.2.log", "rig.player.3.log", "rig.player.log"]
     assert "no_such_bag" in (tmp_path / "logs" / "rig.player.2.log").read_text()
+
+
+def test_launch_arguments_may_follow_the_options():
+    """`clutch up FILE --print --json channel:=0`, as one writes `ros2 launch ... name:=value`."""
+    import json
+
+    from clutch_ros.cli.main import main as clutch
+
+    def channels(*argv) -> dict:
+        done = subprocess.run([sys.executable, "-m", "clutch_ros.cli", "up", "sim.launch.xml",
+                               *argv], capture_output=True, text=True, cwd=REPO, timeout=60)
+        assert done.returncode == 0, done.stderr
+        return {n["name"]: n["parameters"]["can.channel"] for n in json.loads(done.stdout)
+                if "can.channel" in n["parameters"]}
+
+    after = channels("--print", "--json", "channel:=0")
+    assert after == {"/rig_sim": 0, "/can_bridge": 0}
+    assert channels("channel:=0", "--print", "--json") == after
+    with pytest.raises(SystemExit) as err:  # anything else after the options is still refused
+        clutch(["up", "sim.launch.xml", "--print", "bogus"])
+    assert err.value.code == 2
