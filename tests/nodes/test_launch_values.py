@@ -68,7 +68,7 @@ def _declared_values(entry, context) -> dict:
 
 @pytest.mark.parametrize(("file", "name", "value"), [
     (file, name, value) for (file, name), values in LISTED.items() for value in values])
-def test_each_listed_value_is_accepted_by_every_node(file, name, value):
+def test_each_listed_value_is_accepted_by_every_node(file, name, value, tmp_path):
     import rclpy
     from rclpy.context import Context
 
@@ -79,7 +79,7 @@ def test_each_listed_value_is_accepted_by_every_node(file, name, value):
     assert desc.nodes
     for entry in desc.nodes:
         context = Context()
-        rclpy.init(args=["launch_value_test", *entry.ros_args()], context=context)
+        rclpy.init(args=["launch_value_test", *entry.ros_args(tmp_path)], context=context)
         try:
             values = _declared_values(entry, context)
         finally:
@@ -108,7 +108,7 @@ def _param_source(file: str, executable: str, param: str) -> str:
     return match.group(1) if match else ""
 
 
-def test_a_numbered_channel_runs_the_bridge_as_the_rig_launch_file_starts_it(ros_env):
+def test_a_numbered_channel_runs_the_bridge_as_the_rig_launch_file_starts_it(ros_env, tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
 
     from tests.nodes.rclpy_harness import Harness, node_process
@@ -116,8 +116,8 @@ def test_a_numbered_channel_runs_the_bridge_as_the_rig_launch_file_starts_it(ros
     desc = load_launch(REPO / "launch" / "rig.launch.xml",
                        {"interface": "virtual", "channel": "0"})
     bridge = next(n for n in desc.nodes if n.executable == "can_bridge")
-    assert ("can.channel", "0") in bridge.params
-    with node_process("can_bridge", ros_env, *bridge.ros_args()[1:]) as proc, \
+    assert ("can.channel", 0) in bridge.params  # an int, as ros2 launch types value="0"
+    with node_process("can_bridge", ros_env, *bridge.ros_args(tmp_path)[1:]) as proc, \
             Harness("launch_channel_test") as h:
         diags = h.collect(DiagnosticArray, "/diagnostics", 50)
 
