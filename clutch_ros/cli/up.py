@@ -195,15 +195,18 @@ def _supervise(running: list[_Running]) -> int:
                     item.restarts += 1
                     item.start()
                 continue
-            rc = item.proc.returncode
+            proc = item.proc
+            if proc is None:  # not started yet
+                continue
+            rc = proc.returncode
             if rc is None:
                 continue
             if item.may_respawn():
-                item.proc.stop()  # closes its log
+                proc.stop()  # closes its log
                 item.restart_at = time.monotonic() + item.node.respawn_delay
                 _say(f"node {item.node.full_name} exited with code {rc}; respawning in "
-                     f"{item.node.respawn_delay:g} s. Last log lines:\n{item.proc.tail()}")
+                     f"{item.node.respawn_delay:g} s. Last log lines:\n{proc.tail()}")
                 continue
-            _say(f"node {item.proc.name} exited with code {rc}; stopping the others. "
-                 f"Last log lines:\n{item.proc.tail()}")
+            _say(f"node {proc.name} exited with code {rc}; stopping the others. "
+                 f"Last log lines:\n{proc.tail()}")
             return 0 if rc == 0 else 1
