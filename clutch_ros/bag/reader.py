@@ -291,7 +291,10 @@ class BagReader:
         except BagError:
             raise
         except Exception as err:  # noqa: BLE001 - rosbags/storage errors mid-read
-            raise BagCorruptError(blame_file(self.path), f"cannot read messages: {err}") from err
+            hint = ("; `clutch replay --recover` returns the messages before the damage"
+                    if "checksum" in str(err).lower() else "")
+            raise BagCorruptError(blame_file(self.path),
+                                  f"cannot read messages: {err}{hint}") from err
         if start_ns is None and stop_ns is None:
             self._check_counts(declared, seen)
 

@@ -136,6 +136,10 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     try:
         if stop.received:  # stopped before rclpy's handlers were there to do it
             return 0
+        # made while the context is surely valid: a node may end the context from its own
+        # thread while it is being built (bag_player on a bad bag), and an executor made on
+        # an ended context fails half-built (its __del__ then prints a traceback)
+        executor = make_executor(executor_kind)
         node = factory()
         if stop.received:  # (the context is shut down: nothing to spin)
             return 0
@@ -146,7 +150,6 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
         # modules and the message classes in the middle of a callback (latency tail)
         gc.collect()
         gc.freeze()
-        executor = make_executor(executor_kind)
         if executor_kind == "events":
             node.get_logger().warning(EVENTS_WARNING)
         executor.add_node(node)

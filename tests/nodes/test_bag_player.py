@@ -213,11 +213,20 @@ def test_unknown_topic_truncated_and_corrupt_bags(bag, ros_env, tmp_path):
     raw = bytearray(mcap.read_bytes())
     at = raw.find(struct.pack("<QQ", int(run.stamp_ns[50]), int(run.stamp_ns[50]))) + 16
     raw[at + 12 : at + 16] = struct.pack("<I", 0x7FFFFFFF)  # header.frame_id length of msg 51
+    # the same damage in a chunk whose checksum still guards it (our writer's bags)
+    checked = tmp_path / "checked"
+    checked.mkdir()
+    (checked / "metadata.yaml").write_bytes((corrupt / "metadata.yaml").read_bytes())
+    (checked / "corrupt.mcap").write_bytes(bytes(raw))
+    # ... and in a chunk without one (CRC 0: a writer that computes none, rosbags' own)
+    _zero_chunk_crc(raw, at)
     mcap.write_bytes(bytes(raw))
     procs = [proc,
              player(ros_env, tmp_path, {"player.bag": str(truncated)}, "p_truncated"),
              player(ros_env, tmp_path, {"player.bag": str(corrupt), "player.start_delay": 0.0},
-                    "p_corrupt")]  # fmt: skip
+                    "p_corrupt"),
+             player(ros_env, tmp_path, {"player.bag": str(checked), "player.start_delay": 0.0},
+                    "p_checked")]  # fmt: skip
     while any(p.alive() for p in procs) and time.monotonic() < deadline:
         time.sleep(0.1)
     codes = [p.stop() for p in procs]
@@ -229,3 +238,27 @@ def test_unknown_topic_truncated_and_corrupt_bags(bag, ros_env, tmp_path):
     (line,) = [x for x in logs[2].splitlines() if "playback stopped:" in x]
     assert "corrupt.mcap: message 51 on /rig_state" in line and "cannot be decoded" in line
     assert summary_of(procs[2])["published"] == 50
+    # a checksum mismatch: the chunk is refused whole (nothing unverified is published), with
+    # the way to the messages before the damage
+    assert codes[3] == 1, logs[3]
+    (line,) = [x for x in logs[3].splitlines() if "playback stopped:" in x]
+    assert "corrupt.mcap: cannot read messages: Chunk checksum mismatch" in line, line
+    assert "clutch replay --recover" in line
+    assert summary_of(procs[3])["published"] == 0
+
+
+def _zero_chunk_crc(raw: bytearray, offset: int) -> None:
+    """Set the uncompressed CRC of the MCAP chunk holding byte ``offset`` to 0 (unchecked).
+
+    Records after the 8-byte magic: opcode u8, length u64, body; a Chunk (0x06) body starts
+    with message start and end time and uncompressed size (u64 each), then the CRC (u32).
+    """
+    pos = 8
+    while pos < len(raw):
+        opcode, length = raw[pos], struct.unpack_from("<Q", raw, pos + 1)[0]
+        body = pos + 9
+        if opcode == 0x06 and body <= offset < body + length:
+            raw[body + 24 : body + 28] = b"\0\0\0\0"
+            return
+        pos = body + length
+    raise AssertionError(f"no chunk holds byte {offset}")
