@@ -240,3 +240,58 @@ def test_validation_report_views(bags, tmp_path, capsys):
         assert all(0.0 <= v <= 1.0 for v in summary["xcorr_outside"][seq].values())
     assert math.isfinite(summary["rmse"]["seq3"]["ff_t"]["model"])
     assert np.isfinite(models["ff_t"][0].measured_pdiff).all()
+
+
+def _hogs(count):
+    """Start ``count`` busy-looping processes (a loaded machine); the caller stops them."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+
+
+def test_the_same_fit_twice_writes_identical_files_even_under_load(bags, tmp_path, capsys):
+    """An evaluation budget, not a wall-time limit: the load cannot change the result."""
+    argv = [bags["inc_step"], "--law", "ff_t", "--no-pdiff", "--max-evaluations", "12"]
+    quiet, loaded = tmp_path / "quiet.yaml", tmp_path / "loaded.yaml"
+    rc, out, err = _run(fit_cmd, [*argv, "-o", quiet, "--json"], capsys)
+    assert rc == 0, err
+    assert json.loads(out)["evaluations"] >= 1
+    hogs = _hogs(2)
+    try:
+        rc, _, err = _run(fit_cmd, [*argv, "-o", loaded], capsys)
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
+    assert rc == 0, err
+    assert quiet.read_bytes() == loaded.read_bytes()
+    _one_error_line(*_run(fit_cmd, [*argv, "--max-evaluations", "0", "-o", tmp_path / "x"],
+                          capsys), "--max-evaluations must be >= 1")
+
+
+@pytest.fixture(scope="module")
+def elastic_bag(tmp_path_factory):
+    """Write the Test A rig's inc-step run (13 lamellas, soft shafts: 1900 N m/rad)."""
+    root = tmp_path_factory.mktemp("elastic")
+    data = run_offline(RigPlant.from_file("rig_test_a", seed=4), table3_run(2, 10.0))
+    return _write(root / "inc_step_test_a", data, voltages=False)
+
+
+def test_fit_identifies_the_drivetrain_compliance(elastic_bag, tmp_path, capsys):
+    out_file = tmp_path / "elastic.yaml"
+    rc, out, err = _run(fit_cmd, [elastic_bag, "--law", "coulomb", "--base", "test_a",
+                                  "--fit-compliance", "--fix", "friction.temperature_slope",
+                                  "-o", out_file, "--json"], capsys)
+    assert rc == 0, err
+    doc = json.loads(out)
+    assert {"drivetrain.stiffness", "drivetrain.damping"} <= set(doc["values"])
+    truth = load_params(preset_path("rig_test_a")).drivetrain
+    assert doc["values"]["drivetrain.stiffness"] == pytest.approx(truth.stiffness, rel=0.2)
+    assert load_params(out_file).drivetrain.stiffness == pytest.approx(
+        doc["values"]["drivetrain.stiffness"])
+    # without the flag the compliance stays at the base's (off): a worse fit of the same run
+    rc, out, err = _run(fit_cmd, [elastic_bag, "--law", "coulomb", "--base", "test_a",
+                                  "--fix", "friction.temperature_slope",
+                                  "-o", tmp_path / "rigid.yaml", "--json"], capsys)
+    assert rc == 0, err
+    rigid = json.loads(out)
+    assert "drivetrain.stiffness" not in rigid["values"]
+    assert doc["rmse"] < 0.5 * rigid["rmse"]
