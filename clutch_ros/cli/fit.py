@@ -103,7 +103,8 @@ def add_parser(sub) -> None:
                         f"(default {FitOptions.max_nfev}); the same bags give the same file")
     p.add_argument("--fit-compliance", action="store_true",
                    help="fit the drivetrain compliance (drivetrain.stiffness [N m/rad], "
-                        "drivetrain.damping [N m s/rad]) too; default: fixed at --base")
+                        "drivetrain.damping [N m s/rad]) too, and the samples at standstill "
+                        "(a stuck clutch; left out otherwise); default: fixed at --base")
     p.add_argument("--threads", type=int, default=0, metavar="N",
                    help="threads computing the finite-difference Jacobian's columns at once "
                         "(default 0: one per core this process may use; 1: one after the "
@@ -147,6 +148,8 @@ def run(args) -> int:
     if not args.max_evaluations >= 1:
         raise ClutchError(f"--max-evaluations must be >= 1, got {args.max_evaluations}")
     kwargs["max_nfev"] = args.max_evaluations
+    if args.fit_compliance:  # a stuck clutch is what the compliance explains: fit it too
+        kwargs["min_slip_speed"] = 0.0
     kwargs["workers"] = args.threads or usable_cores()
     options = FitOptions(**kwargs)
     validation = []

@@ -37,8 +37,9 @@ __all__ = ["COMPLIANCE_KEYS", "COMPLIANCE_START", "compliance_start", "FILM_KEYS
 FILM_KEYS = ("friction.film_depth", "friction.film_recovery_time")
 #: drivetrain keys fitted with ``compliance=True`` (``clutch fit --fit-compliance``)
 COMPLIANCE_KEYS = ("drivetrain.stiffness", "drivetrain.damping")
-#: their start values when the base has them at 0: 2000 N m/rad, 40 N m s/rad (c/k = 20 ms)
-COMPLIANCE_START = {"drivetrain.stiffness": 2000.0, "drivetrain.damping": 40.0}
+#: their start values when the base has them at 0: soft (500 N m/rad, 10 N m s/rad, c/k 20 ms),
+#: so that the clutch sticks at the start point and both keys act on the torque
+COMPLIANCE_START = {"drivetrain.stiffness": 500.0, "drivetrain.damping": 10.0}
 
 
 def film_shown(runs, *, min_standstill: float = 0.3, standstill_speed: float = 0.05,
