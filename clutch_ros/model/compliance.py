@@ -67,8 +67,8 @@ def _step(state: FloatArray, dt: float, omega: float, t_kin: float, t_static: fl
 
     ω_m = ``omega`` [rad/s] held; capacities ``t_kin`` ≤ ``t_static`` [N m]; k > 0, c ≥ 0.
     """
-    theta = state[0]
-    slip = state[1]
+    theta: float = state[0]
+    slip: float = state[1]
     rest = dt
     if slip == 0.0:
         torque = k * (theta + omega * dt) + c * omega
@@ -198,8 +198,8 @@ def capacities(params: ClutchParams, mu: ArrayLike, compression: ArrayLike,
 
 def stored_energy(params: ClutchParams, twist: ArrayLike) -> Any:
     """Return the spring energy k θ² / 2 [J] of the twist θ [rad] (0 when off)."""
-    k = params.drivetrain.stiffness
-    return 0.5 * k * np.square(twist) if np.ndim(twist) else 0.5 * k * float(twist) ** 2
+    energy = 0.5 * params.drivetrain.stiffness * np.square(np.asarray(twist, dtype=float))
+    return energy if energy.ndim else float(energy)
 
 
 class Drivetrain:
