@@ -162,7 +162,17 @@ def drive_series(params: ClutchParams, dts: ArrayLike, omega: ArrayLike, t_kin: 
     loop = None if engine == "numpy" else _compiled()
     if loop is None and engine == "kernel":
         raise KernelUnavailableError(f"engine='kernel': {kernel.unavailable_reason()}")
-    (loop or _SERIES_PY)(*args)
+    if loop is None:
+        _SERIES_PY(*args)
+        return torque, slip
+    try:
+        loop(*args)
+    except kernel._state["numba_error"] as err:  # compilation failed: nothing ran
+        if engine == "kernel":
+            raise KernelUnavailableError(f"engine='kernel': compliance loop: {err}") from err
+        _log.warning("compliance kernel: compilation failed (%s); Python loop", err)
+        _state["series"] = None
+        _SERIES_PY(*args)
     return torque, slip
 
 
