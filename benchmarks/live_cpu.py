@@ -43,6 +43,8 @@ PER_MESSAGE_TOPIC = {"can_bridge": "/rig_state", "estimator": "/rig_state",
                      "controller": "/pressure_command", ECHO: "/rig_state",
                      "rig_sim": "/rig_state"}
 _TICKS = os.sysconf("SC_CLK_TCK")
+#: the demo's progress line, ``[  0.0/48.0 s] request ...`` (not a node's ``[INFO] [...`` log)
+_PROGRESS = re.compile(r"\[\s*[\d.]+/[\d.]+ s\]")
 
 
 def read_cpu(pid: int) -> float | None:
@@ -121,7 +123,7 @@ class _Run:
             match = re.search(r"ROS domain (\d+)", line)
             if match and self.domain is None:
                 self.domain = match.group(1)
-            if line.startswith("[") and not self.started.is_set():
+            if _PROGRESS.match(line) and not self.started.is_set():
                 if self.on_start:
                     self.on_start()
                 self.started.set()
