@@ -142,8 +142,10 @@ def solve_pressure(params: ClutchParams, torque: float, lamella_temperature: flo
         p_ss = p_max
         reason = f"unreachable: {torque:.1f} N m > {cap_max:.1f} N m at max pressure"
     else:
-        p_ss = _closed_form(params, torque, lamella_temperature, slip_speed, film, cap_max)
-        if p_ss is None:
+        closed = _closed_form(params, torque, lamella_temperature, slip_speed, film, cap_max)
+        if closed is not None:
+            p_ss = closed
+        else:
             # scipy.optimize takes ~0.7 s to import: loaded by the first inversion that needs
             # it, not by everything that imports this module (clutch replay's start-up)
             from scipy.optimize import brentq
