@@ -47,7 +47,9 @@ def test_layout_plots_only_fields_that_exist():
             topic, field = path["value"].split(".", 1)
             seen.add(topic)
             if topic.startswith("/studio_script/"):
-                assert topic.endswith("accuracy_band") and field in ("upper", "lower")
+                assert topic.rsplit("/", 1)[1] in layout["userNodes"], path["value"]
+                assert topic.endswith(("accuracy_band", "torque_band")), path["value"]
+                assert field in ("upper", "lower"), path["value"]
                 continue
             fields = dict(store.fielddefs[types[topic]][1])
             assert re.sub(r"\[\d+\]$", "", field) in fields, (panel, path["value"])
