@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import tempfile
 from pathlib import Path
@@ -69,10 +70,13 @@ def main() -> int:
                          f"{100 * r['coverage_95_transient']:6.1f} "
                          f"{100 * r['coverage_95_steady']:6.1f}  "
                          f"{r['coverage_transient_samples']}/{r['coverage_samples']}\n")
-    ok = [90 <= 100 * r["coverage_95"] <= 98
-          and 85 <= 100 * r["coverage_95_transient"] <= 99
-          and 85 <= 100 * r["coverage_95_steady"] <= 99 for r in rows]
-    sys.stdout.write(f"runs meeting the issue-24 bounds: {sum(ok)}/{len(ok)}\n")
+    def within(value, low, high):  # a phase without samples (NaN) has nothing to meet
+        return math.isnan(value) or low <= 100 * value <= high
+
+    ok = [within(r["coverage_95"], 90, 98) and within(r["coverage_95_transient"], 85, 99)
+          and within(r["coverage_95_steady"], 85, 99) for r in rows]
+    sys.stdout.write(f"runs meeting the issue-24 bounds (a phase without samples: n/a): "
+                     f"{sum(ok)}/{len(ok)}\n")
     worst = np.array([[r["coverage_95"], r["coverage_95_transient"], r["coverage_95_steady"]]
                       for r in rows])
     sys.stdout.write(f"min all/trans/steady: {np.nanmin(worst, axis=0).round(3)}  "

@@ -21,8 +21,9 @@ parameter file under ``uncertainty.*`` (:data:`DEFAULTS` when absent).
 
 Phases (for :func:`coverage`): a sample is *transient* within ``TRANSIENT_WINDOW`` [s] after
 the actuating pressure moved faster than ``TRANSIENT_RATE`` of its run's range per second
-(``|dp/dt|``, backward difference), or the slip speed reversed (its sign outside
-``+-SLIP_DEADBAND`` [rad/s] changed); every other sample is *steady*.
+(``|dp/dt|``, backward difference over ``RATE_SPAN`` [s]), or the slip speed reversed (its
+sign outside ``+-SLIP_DEADBAND`` [rad/s] changed); every other sample is *steady*. A slow
+ramp is steady throughout (a run may have no transient sample: its fraction is then NaN).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ __all__ = [
     "ErrorModel",
     "TRANSIENT_RATE",
     "TRANSIENT_WINDOW",
+    "RATE_SPAN",
     "SLIP_DEADBAND",
     "Z95",
     "coverage",
@@ -55,6 +57,8 @@ __all__ = [
 Z95 = 1.959963984540054
 #: Phase definition: pressure rate [1/s of the run's pressure range] marking a transient.
 TRANSIENT_RATE = 0.2
+#: Phase definition: the pressure rate is the difference over this span [s] (not the noise).
+RATE_SPAN = 0.1
 #: Phase definition: how long a sample stays transient after the marker [s].
 TRANSIENT_WINDOW = 1.0
 #: Phase definition: slip speeds within +- this are no direction (noise at standstill) [rad/s].
@@ -233,12 +237,13 @@ def phases(t: np.ndarray, pressure: np.ndarray, slip: np.ndarray) -> np.ndarray:
     p = np.asarray(pressure, dtype=float)
     s = np.asarray(slip, dtype=float)
     span = float(np.nanmax(p) - np.nanmin(p)) if np.isfinite(p).any() else 0.0
-    dt = np.diff(t)
+    back = np.maximum(np.searchsorted(t, t - RATE_SPAN, side="right") - 1, 0)
+    dt = t - t[back]
     with np.errstate(invalid="ignore", divide="ignore"):
-        rate = np.abs(np.diff(p)) / np.where(dt > 0, dt, np.nan)
+        rate = np.abs(p - p[back]) / np.where(dt > 0, dt, np.nan)
     marker = np.zeros(t.size, dtype=bool)
     if span > 0:
-        marker[1:] = rate > TRANSIENT_RATE * span
+        marker = rate > TRANSIENT_RATE * span
     sign = np.where(np.abs(s) > SLIP_DEADBAND, np.sign(s), 0.0)
     last_sign = 0.0
     for i in range(t.size):  # a reversal: the sign outside the deadband changed
