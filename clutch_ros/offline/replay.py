@@ -183,7 +183,8 @@ def uncertainty_summary(rig: RigStateArrays, batch: Any, std: np.ndarray) -> dic
     ``coverage_95_transient`` and ``coverage_95_steady`` (the phases of
     :func:`clutch_ros.model.uncertainty.phases`: transient within 1 s after the actuating
     pressure moved faster than 20 % of the bag's range per second (over 0.1 s) or the slip
-    reversed beyond +-0.3 rad/s; steady otherwise; NaN for a phase without samples), the sample counts, and ``torque_std_mean_nm`` [N m].
+    reversed beyond +-0.3 rad/s; steady otherwise; NaN for a phase without samples), the
+    sample counts, and ``torque_std_mean_nm`` [N m].
     """
     rows = published_rows(batch)
     t = stamps_s(rig)
