@@ -40,9 +40,9 @@ from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
 from clutch_ros.model.batch import warm_up
 from clutch_ros.model.params import SPLINE_LAWS
-from clutch_ros.model.uncertainty import ErrorModel
+from clutch_ros.model.uncertainty import ErrorModel, torque_std
 from clutch_ros.offline.batch import run_jobs
-from clutch_ros.offline.replay import ReplayJob
+from clutch_ros.offline.replay import ReplayJob, stamps_s, uncertainty_summary
 from clutch_ros.offline.replay import replay_bag as replay
 from clutch_ros.offline.replay_report import ReplayReport
 
@@ -137,7 +137,7 @@ def run(args) -> int:
     # large); in parallel, the workers return summaries only (whole results with --report)
     done: Iterator[Any]
     if adaptive.enabled:
-        done = (_adaptive_job(adaptive, item, args) for item in items)
+        done = (_adaptive_job(adaptive, item, args, error_model) for item in items)
     elif serial:
         done = (job(item) for item in items)
     else:
@@ -180,12 +180,16 @@ def run(args) -> int:
     return 0
 
 
-def _adaptive_job(adaptive, item, args):
+def _adaptive_job(adaptive, item, args, error_model):
     """Replay one bag with the adaptive estimator (serial: it learns across the bags)."""
     source, out = item
     start = time.perf_counter()
     result, write = adaptive.replay(source, topic=args.topic)
+    # modelled_torque_std of the adapted torque, as the node computes it
+    result.torque_std = torque_std(error_model, stamps_s(result.rig),
+                                   result.batch.modelled_torque, result.batch.slip_speed_filtered)
     summary = result.summary
+    summary.update(uncertainty_summary(result.rig, result.batch, result.torque_std))
     seconds = time.perf_counter() - start
     summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
     if out is not None:
