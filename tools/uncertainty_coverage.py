@@ -14,6 +14,7 @@ import json
 import math
 import sys
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -40,11 +41,14 @@ def main() -> int:
     ap.add_argument("--fit", default="table3_seq2_10rpm")
     ap.add_argument("--params", default="flexiforce_8")
     ap.add_argument("--sim-seeds", type=int, default=0)
+    ap.add_argument("--time-constant", type=float, default=unc.DEFAULTS.time_constant,
+                    help="rate filter time constant of the error model [s]")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     params = load_params(preset_path(args.params))
     t, mod, meas, slip, _ = _series(GOLDEN / args.fit, params)
-    model = unc.fit_error_model(t, mod, meas, slip)
+    base = replace(unc.DEFAULTS, time_constant=args.time_constant)
+    model = unc.fit_error_model(t, mod, meas, slip, base)
     rows = []
     runs = [(name, GOLDEN / name) for name in GOLDEN_RUNS if name != args.fit]
     with tempfile.TemporaryDirectory() as tmp:
