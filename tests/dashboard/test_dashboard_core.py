@@ -56,6 +56,12 @@ def test_layout_plots_only_fields_that_exist():
     assert {"/clutch_estimate", "/rig_state", "/torque_request", "/pressure_command",
             "/pump_request"} <= seen
     assert any(p.startswith("DiagnosticSummary") for p in layout["configById"])
+    # the torque plot's 95 % band: modelled_torque +- 1.96 modelled_torque_std
+    band = layout["userNodes"]["torque_band"]["sourceCode"]
+    assert "1.96 * event.message.modelled_torque_std" in band
+    assert '"/studio_script/torque_band"' in band
+    torque = [p["value"] for p in layout["configById"]["Plot!torque"]["paths"]]
+    assert {"/studio_script/torque_band.upper", "/studio_script/torque_band.lower"} <= set(torque)
 
 
 def test_busy_port_is_a_clear_error():
