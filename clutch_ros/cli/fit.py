@@ -57,6 +57,7 @@ from clutch_ros.offline.fit_auto import (
     score_law,
 )
 from clutch_ros.offline.flexiforce import load_runs
+from clutch_ros.offline.replay import fit_error_model_on_bags
 
 __all__ = ["add_parser", "run", "main"]
 
@@ -175,7 +176,8 @@ def run(args) -> int:
               f"fit RMSE {result.rmse:.3f} N m; fitted: "
               + ", ".join(f"{k} = {result.values[k]:.6g} +- {result.stderr[k]:.2g}"
                           for k in result.keys))
-    write_params(result.params, out, header=header)
+    error_model = fit_error_model_on_bags(args.bags, result.params)  # modelled_torque_std
+    write_params(result.params, out, header=header, extra=error_model.to_flat())
     cal = info["calibration"]
     if args.json:
         doc = result.to_dict()
@@ -185,7 +187,8 @@ def run(args) -> int:
                    calibration_file=args.calibration_file,
                    calibration_comparison=(None if info["comparison"] is None
                                            else _comparison_brief(info["comparison"])),
-                   calibration_error=info["calibration_error"])
+                   calibration_error=info["calibration_error"],
+                   uncertainty=error_model.to_flat())
         if auto is not None:
             doc.update(auto=[s.to_dict() for s in auto.scores], best_law=auto.best.law,
                        validated_on=auto.validated_on)

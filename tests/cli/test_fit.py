@@ -19,6 +19,7 @@ from clutch_ros.cli import fit as fit_cmd
 from clutch_ros.config.params_file import load_flat, load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model.params import PARAMETER_SPECS, ClutchParams
+from clutch_ros.model.uncertainty import DEFAULTS, ErrorModel
 from clutch_ros.rig import RigPlant, run_offline, table3_run, table4_run
 
 START_NS = 1_700_000_000 * 1_000_000_000
@@ -98,6 +99,10 @@ def test_fit_writes_a_parameter_file_the_nodes_accept(bags, tmp_path, capsys):
         assert flat[key] == pytest.approx(value)
     text = out_file.read_text()
     assert text.startswith("# clutch fit --law coulomb") and "ros__parameters" in text
+    # the torque error model identified on the fit bags, written beside the parameters
+    model = ErrorModel.from_flat(flat)
+    assert model != DEFAULTS and model.to_flat() == pytest.approx(doc["uncertainty"])
+    assert model.base > 0.0
 
 
 def test_fit_prints_values_with_standard_errors(bags, tmp_path, capsys):
