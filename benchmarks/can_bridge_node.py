@@ -15,6 +15,10 @@ in the same run, with a bare python-can receive loop in its own process:
   every socket on the host) -> RigState received by an rclpy subscriber in this process;
   bare loop: bus timestamp -> ``recv()`` returned. Median and 99th percentile.
 
+``--sustained [--seconds 60] [--rate 8000]``: a full bus for a minute, the rig's own frames
+plus foreign ones, with frame accounting, trigger-to-RigState latency and CPU per receiver
+(:mod:`benchmarks.can_bridge_sustained`).
+
 Each bridge mode (``--modes``: ``publish_on`` RigSpeed, the default, and ``timer``) is a
 separate node process. The sender shares the machine's cores with the receivers, so the
 figures are lower bounds of what the receivers can do on a quiet machine. rclpy is imported
@@ -43,7 +47,7 @@ from clutch_ros.canbus.dbc import RigDatabase
 __all__ = ["ReceiverResult", "StepResult", "main", "run"]
 
 _START, _END, _EXIT = 0x7F0, 0x7F1, 0x7F2  # control frames (not in the DBC)
-_ROOT = Path(__file__).resolve().parents[2]
+_ROOT = Path(__file__).resolve().parents[1]  # the repository
 
 
 @dataclass
@@ -371,6 +375,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--bare-receiver"]:
         return _bare_receiver(argv[1], int(argv[2]))
+    if "--sustained" in argv:  # a full bus for a minute: its own module
+        from benchmarks.can_bridge_sustained import main as sustained
+
+        return sustained(argv)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rates", default="1000,2000,5000,10000,20000,30000",
                         help="throughput steps [frames/s], comma separated")
