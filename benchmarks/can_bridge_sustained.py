@@ -194,7 +194,8 @@ def _bridge(group: str, port: int, bridge_rate: float, env: dict, log: Path):
 
 
 _KEYS = ("frames_total", "receive_drops", "dropped_frames", "decoded_frames", "unknown_frames",
-         "decode_errors", "malformed_frames", "own_echoes_dropped", "listener_errors")
+         "decode_errors", "malformed_frames", "own_echoes_dropped", "listener_errors",
+         "pump_frames")
 
 
 def _report_after(ros: _Ros, t: float, timeout: float = 15.0, nth: int = 2) -> dict:
@@ -279,7 +280,10 @@ def run_sustained(rate: float = 8000.0, seconds: float = 60.0, bridge_rate: floa
                 "cpu_us_per_frame": (cpu2[name] - cpu0[name]) / hz / sent["sent"] * 1e6}
 
     d = {k: after[k] - before.get(k, 0.0) for k in after}
-    bridge_res = {"received": int(d["frames_total"]), "kernel_drops": int(d["receive_drops"]),
+    # the kernel's count includes echoes of the bridge's own PumpRequests (sent, not removed)
+    own_lost = max(0, int(d["pump_frames"] - d["own_echoes_dropped"]))
+    bridge_res = {"received": int(d["frames_total"]),
+                  "kernel_drops": int(d["receive_drops"]) - own_lost, "own_echoes_lost": own_lost,
                   "counter_drops": int(d["dropped_frames"]), "decoded": int(d["decoded_frames"]),
                   "unknown": int(d["unknown_frames"]), "decode_errors": int(d["decode_errors"]),
                   "malformed": int(d["malformed_frames"]),

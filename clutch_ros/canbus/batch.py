@@ -21,6 +21,7 @@ from __future__ import annotations
 import select
 import socket
 import struct
+from typing import Any
 
 import can
 from can.interfaces.udp_multicast.utils import msgpack, unpack_message  # (None: not installed)
@@ -84,7 +85,7 @@ class UdpBatchReader:
         when the socket fails before any frame was read (after: the frames read are returned,
         and the next call meets the failure).
         """
-        sock, out = self.sock, []
+        sock, out = self.sock, list[RawFrame]()
         try:
             ready, _, _ = select.select([sock], [], [], timeout)
         except OSError as exc:
@@ -129,7 +130,7 @@ class UdpBatchReader:
         return out
 
 
-def _fast(stamp: float, d: dict) -> RawFrame | None:
+def _fast(stamp: float, d: dict[str, Any]) -> RawFrame | None:
     """Return the frame of a msgpack map as python-can writes it, None if anything differs."""
     ident, ext, remote, error = (d["arbitration_id"], d["is_extended_id"],
                                  d["is_remote_frame"], d["is_error_frame"])

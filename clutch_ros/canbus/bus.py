@@ -361,8 +361,8 @@ class ReconnectingBus(can.BusABC):
         except Exception as err:  # CanOperationError, OSError: as recv()
             self._fail(bus, f"receive failed: {type(err).__name__}: {err}")
             return []
-        for err in errors:
-            self._count_malformed(malformed_reason(err) or "not_a_frame", err)
+        for bad in errors:
+            self._count_malformed(malformed_reason(bad) or "not_a_frame", bad)
         echo = self._echo
         if echo is not None and echo.waiting:
             frames = [f for f in frames if not echo.is_echo_of(

@@ -19,6 +19,7 @@ any other frame of a rig's own DBC (Motorola byte order, floats, multiplexed) is
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 from clutch_ros.canbus.dbc import CAN_EFF_FLAG, RigDatabase, crc8_sae_j1850
 from clutch_ros.canbus.errors import FrameDecodeError
@@ -29,7 +30,7 @@ __all__ = ["FastDecoder"]
 _Field = tuple[str, int, int, int, float, float | None, float]
 
 
-def _conversion(signal) -> tuple[float, float | None] | None:
+def _conversion(signal: Any) -> tuple[float, float | None] | None:
     """Return ``(scale, offset)`` of a cantools signal's linear conversion.
 
     ``(1, None)`` for the identity, None when it is neither (the frame is not compiled).
@@ -46,7 +47,7 @@ def _conversion(signal) -> tuple[float, float | None] | None:
     return None
 
 
-def _compile(message, factors: dict[str, float]) -> tuple[_Field, ...] | None:
+def _compile(message: Any, factors: dict[str, float]) -> tuple[_Field, ...] | None:
     """Return the field table of a cantools message, or None when it cannot be compiled."""
     if message.is_multiplexed() or message.length > 64:
         return None
