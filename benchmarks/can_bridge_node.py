@@ -344,9 +344,12 @@ def _measure_bridge(sender, ros, group, port, mode, rates, step_s, lat_s, env, l
     return result
 
 
-def run(rates=(1000, 2000, 5000, 10000, 20000, 30000), step_s: float = 3.0, lat_s: float = 5.0,
-        modes=("trigger", "timer"), log_dir: Path | None = None) -> tuple[str, list]:
-    """Run the benchmark; return ``(bus description, [ReceiverResult, ...])``."""
+def private_run(log_dir: Path | None, prefix: str) -> tuple[str, int, dict, Path]:
+    """Return a private multicast group, port, child environment and log directory.
+
+    This process joins the same ROS domain (localhost discovery), so its rclpy subscribers
+    see the children's topics.
+    """
     group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"
     port = random.randint(20000, 60000)
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
@@ -354,8 +357,15 @@ def run(rates=(1000, 2000, 5000, 10000, 20000, 30000), step_s: float = 3.0, lat_
     env["PYTHONPATH"] = str(_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    log_dir = log_dir or Path("/tmp") / f"clutch_node_bench_{os.getpid()}"
+    log_dir = log_dir or Path("/tmp") / f"{prefix}_{os.getpid()}"
     log_dir.mkdir(parents=True, exist_ok=True)
+    return group, port, env, log_dir
+
+
+def run(rates=(1000, 2000, 5000, 10000, 20000, 30000), step_s: float = 3.0, lat_s: float = 5.0,
+        modes=("trigger", "timer"), log_dir: Path | None = None) -> tuple[str, list]:
+    """Run the benchmark; return ``(bus description, [ReceiverResult, ...])``."""
+    group, port, env, log_dir = private_run(log_dir, "clutch_node_bench")
     sender = _Sender(BusConfig(interface="udp_multicast", channel=group, extra={"port": port}))
     results = [_measure_bare(sender, group, port, rates, step_s, lat_s)]
     if modes:

@@ -40,7 +40,7 @@ from types import SimpleNamespace
 
 from can.interfaces.udp_multicast.utils import pack_message
 
-from benchmarks.can_bridge_node import _ROOT, _percentile, _Ros, _say, _stop
+from benchmarks.can_bridge_node import _ROOT, _percentile, _Ros, _say, _stop, private_run
 from clutch_ros.canbus.bus import BusConfig, open_bus
 from clutch_ros.canbus.dbc import RigDatabase
 from clutch_ros.canbus.udp import receive_drops
@@ -228,15 +228,7 @@ def _drained(ros: _Ros, t: float, before: dict, sent: int, timeout: float = 60.0
 def run_sustained(rate: float = 8000.0, seconds: float = 60.0, bridge_rate: float = 100.0,
                   log_dir: Path | None = None) -> dict:
     """Run the sustained benchmark; return its figures (see the module docstring)."""
-    group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"
-    port = random.randint(20000, 60000)
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
-               ROS_DOMAIN_ID=os.environ.get("ROS_DOMAIN_ID", str(random.randint(120, 200))))
-    env["PYTHONPATH"] = str(_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
-    os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    log_dir = log_dir or Path("/tmp") / f"clutch_sustained_{os.getpid()}"
-    log_dir.mkdir(parents=True, exist_ok=True)
+    group, port, env, log_dir = private_run(log_dir, "clutch_sustained")
     sender = _child(["--sender", group, str(port), str(rate), str(seconds)], env)
     bare = _child(["--bare", group, str(port)], env)
     bridge = _bridge(group, port, bridge_rate, env, log_dir / "can_bridge.log")
