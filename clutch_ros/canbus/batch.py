@@ -63,6 +63,10 @@ class UdpBatchReader:
     def __init__(self, sock: socket.socket, fd: bool, max_buffer: int = 4096) -> None:
         self.sock, self.fd, self.max_buffer = sock, fd, max_buffer
         self._ancillary = socket.CMSG_SPACE(_TIMESPEC.size)
+        # python-can gives the socket a send timeout, and CPython then waits up to that long
+        # before any recvmsg, MSG_DONTWAIT or not: poll(0) says when the queue is empty
+        self._poll = select.poll()
+        self._poll.register(sock, select.POLLIN)
 
     @classmethod
     def for_bus(cls, bus: can.BusABC) -> UdpBatchReader | None:
@@ -96,7 +100,11 @@ class UdpBatchReader:
                                         socket.MSG_DONTWAIT)
         assert msgpack is not None  # for_bus made no reader without it
         unpackb, keys, fd_ok = msgpack.unpackb, _KEYS, self.fd
+        poll, more = self._poll.poll, False
         while len(out) < limit:
+            if more and not poll(0):
+                break
+            more = True
             try:
                 raw, ancillary, _, _ = recvmsg(size, anc, dontwait)
             except BlockingIOError:

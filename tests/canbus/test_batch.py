@@ -110,3 +110,17 @@ def test_a_closed_bus_raises_like_recv():
 def test_frame_and_message_round_trip(msg):
     again = frame_message(message_frame(msg))
     assert message_frame(again) == message_frame(msg)
+
+
+def test_a_send_timeout_on_the_socket_does_not_hold_a_batch_back():
+    """python-can's send sets a socket timeout; CPython then waits that long before recvmsg."""
+    group, port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
+    with ReconnectingBus(config) as bus, open_bus(config) as peer:
+        bus.send(can.Message(arbitration_id=0x80, is_extended_id=False, data=bytes(8)),
+                 timeout=10.0)  # the socket's timeout is now 10 s
+        peer.send(FRAMES[0])
+        start = time.monotonic()
+        got = _read_all(lambda: bus.recv_batch(1.0), 1)
+        assert [f[1] for f in got] == [0x100]
+        assert time.monotonic() - start < 5.0  # not the socket's 10 s
