@@ -34,7 +34,6 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
-from scipy.optimize import nnls
 
 from clutch_ros.model.errors import ModelError
 
@@ -218,6 +217,8 @@ def fit_error_model(t: np.ndarray, modelled: np.ndarray, measured: np.ndarray,
     scale = np.maximum(np.sqrt(np.mean(design ** 2, axis=0)), 1e-300)
     floor = 1e-3 * float(np.mean(target)) + 1e-12  # never a zero-width band
     weight = np.ones(len(x))
+    from scipy.optimize import nnls  # loaded by fits only: `clutch replay` starts without it
+
     for _ in range(4):
         coef, _ = nnls(design / scale * weight[:, None], target * weight)
         coef = coef / scale
