@@ -223,7 +223,9 @@ class PublishPacer:
     attempt), so the topic degrades to half the rate instead of stopping. The count starts at
     a frame, not at the last attempt: after a pause of the whole bus (a stalled rig, a busy
     PC) the cycle's first frames are no "missing trigger" -- its trigger is still to come, and
-    publishing before it would send a sample half of whose signals are a cycle old. A frame
+    publishing before it would send a sample half of whose signals are a cycle old. The same
+    holds for a pause within a cycle: a gap of more than ``1 / rate`` s between two rig frames
+    is a pause, not frames flowing, so the count starts over at the frame after it. A frame
     held back by the cap leaves the pacer ``pending``: :meth:`flush`, called from a slow
     timer, publishes it once the cap allows, so the last state before the bus goes quiet is
     never withheld.
@@ -244,6 +246,7 @@ class PublishPacer:
         # bus time [s] of the first rig frame since the last publication attempt: frames
         # flowing for 2 / rate s from here without a trigger mean the trigger is missing
         self._flowing_since: float | None = None
+        self._last_frame: float | None = None  # bus time [s] of the last rig frame counted
         #: a frame was held back by the rate cap and not published since
         self.pending = False
 
@@ -254,8 +257,11 @@ class PublishPacer:
         if key != self.trigger:
             if key not in self.fallback:
                 return False
-            if self._flowing_since is None or now < self._flowing_since:
-                self._flowing_since = now  # (a time going back: a new log starts over)
+            last, self._last_frame = self._last_frame, now
+            if (self._flowing_since is None or now < self._flowing_since
+                    or last is None or (now - last) * self.rate > 1.0):
+                # (a time going back: a new log starts over; a pause: the trigger decides)
+                self._flowing_since = now
             if (now - self._flowing_since) * self.rate <= 2.0:
                 return False
         self._flowing_since = None

@@ -47,6 +47,28 @@ def triggers(rec) -> list[float]:
     return frame_times(list(rec.frames), DB).get("RigSpeed", [])
 
 
+def stopped_now(pid: int, timeout: float = 5.0) -> float:
+    """Wait until every thread of ``pid`` is stopped; return the time [s] it was seen so.
+
+    ``os.kill(pid, SIGSTOP)`` returns before the process stops: on a loaded machine its
+    threads may run (and publish) for milliseconds after, so a stop window must start when
+    /proc shows all of them stopped, not at the call (issue 23).
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        states = []
+        for tid in os.listdir(f"/proc/{pid}/task"):
+            try:
+                with open(f"/proc/{pid}/task/{tid}/stat") as f:
+                    states.append(f.read().rsplit(")", 1)[1].split()[0])
+            except FileNotFoundError:  # a thread that ended
+                continue
+        if states and all(s in "tT" for s in states):
+            return time.time()
+        assert time.monotonic() < deadline, f"process {pid} did not stop: {states}"
+        time.sleep(0.0005)
+
+
 def stamp_span(got) -> float:
     """Return the time [s] the received RigState stamps span."""
     return (stamp_to_sec(got[-1][1].header.stamp) - stamp_to_sec(got[0][1].header.stamp)
@@ -62,7 +84,7 @@ def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_pat
     group, port = private_group()
     env = isolated_ros_env(int(os.environ["ROS_DOMAIN_ID"]))
     got = []  # (receive wall time [s], RigState)
-    stops = []  # (wall time [s] just before SIGSTOP, just before SIGCONT) of the bridge
+    stops = []  # (wall time [s] all its threads were seen stopped, just before SIGCONT)
     with BusRecorder(group, port) as rec:
         procs = [NodeProcess(name, ["--ros-args", *ros_param_args(params)], env, tmp_path)
                  for name, params in (("rig_sim", {**bus_params(group, port),
@@ -78,8 +100,8 @@ def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_pat
                 # stop the bridge until three stops held trigger frames of the rig (a rig
                 # starved by a loaded machine may send nothing during one): bounded
                 for _ in range(MAX_STOPS):
-                    stopped = time.time()
                     os.kill(procs[1].pid, signal.SIGSTOP)
+                    stopped = stopped_now(procs[1].pid)
                     time.sleep(STOP)
                     resumed = time.time()
                     os.kill(procs[1].pid, signal.SIGCONT)
