@@ -1,9 +1,10 @@
 """Several clutch_ros nodes in one process and one executor (``clutch up --one-process``).
 
-``python -m clutch_ros.nodes.composed --node can_bridge --ros-args ... --node estimator
---ros-args ... --node controller --ros-args ...`` builds each node with its own ROS
-arguments (name and namespace remaps, parameter files, ``-p``), as if it ran alone, and spins
-them all in one SingleThreadedExecutor: one process, one DDS participant, no context switch
+``python -m clutch_ros.nodes.composed [--executor KIND] --node can_bridge --ros-args ...
+--node estimator --ros-args ... --node controller --ros-args ...`` builds each node with its
+own ROS arguments (name and namespace remaps, parameter files, ``-p``), as if it ran alone,
+and spins them all in one executor (the nodes' default, or ``--executor KIND`` as a node
+takes it, :mod:`clutch_ros.nodes.runner`): one process, one DDS participant, no context switch
 between the bridge, the estimator and the controller. Signals, ``--help``, bad settings
 (``composed: error: ...``, exit 2) and the clean shutdown are those of one node
 (:func:`clutch_ros.nodes.runner.run_nodes`); the lifecycle bridge's ``autostart`` acts when
@@ -26,7 +27,7 @@ from contextlib import contextmanager
 
 from rclpy.node import Node
 
-from clutch_ros.nodes.runner import run_nodes
+from clutch_ros.nodes.runner import DEFAULT_EXECUTOR, run_nodes
 
 __all__ = ["COMPOSABLE", "NODE_FLAG", "composed_args", "main", "parse_groups"]
 
@@ -103,12 +104,15 @@ def main(args=None) -> int:
     if not argv or argv[0] in ("-h", "--help"):
         sys.stdout.write(__doc__ + f"\ncomposable nodes: {', '.join(COMPOSABLE)}\n")
         return 0
+    executor = DEFAULT_EXECUTOR
+    if argv[0] == "--executor" and len(argv) > 1:  # as a node's --executor (runner.py)
+        executor, argv = argv[1], argv[2:]
     try:
         groups = parse_groups(argv)
     except ValueError as err:
         sys.stderr.write(f"{NAME}: error: {err}\n")
         return 2
-    return run_nodes(NAME, [_factory(e, a) for e, a in groups], [])
+    return run_nodes(NAME, [_factory(e, a) for e, a in groups], [], executor)
 
 
 if __name__ == "__main__":

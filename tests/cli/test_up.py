@@ -256,3 +256,25 @@ def test_launch_arguments_may_follow_the_options():
     with pytest.raises(SystemExit) as err:  # anything else after the options is still refused
         clutch(["up", "sim.launch.xml", "--print", "bogus"])
     assert err.value.code == 2
+
+
+def test_one_process_print_groups_the_chain_and_bad_composed_args_are_one_line(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "clutch_ros.cli", "up", "sim.launch.xml",
+                           "--one-process", "--print", "--json", "--log-dir", str(tmp_path)],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    import json
+
+    entries = json.loads(done.stdout)
+    assert [e["executable"] for e in entries] == ["rig_sim", "composed"]
+    chain = entries[1]
+    assert chain["name"] == "/can_bridge+/estimator+/controller"
+    assert [a for i, a in enumerate(chain["args"]) if chain["args"][i - 1] == "--node"] == [
+        "can_bridge", "estimator", "controller"]
+    assert chain["parameters"]["/can_bridge"]["can.interface"] == "udp_multicast"
+    for argv, text in ((["--node", "recorder"], "--node recorder: not a composable node"),
+                       (["-p", "x:=1"], "expected --node EXECUTABLE first")):
+        bad = subprocess.run([sys.executable, "-m", "clutch_ros.nodes.composed", *argv],
+                             capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and bad.stderr.count("\n") == 1, bad.stderr
+        assert text in bad.stderr, bad.stderr
