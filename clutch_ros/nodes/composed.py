@@ -70,7 +70,7 @@ def parse_groups(argv: Sequence[str]) -> list[tuple[str, list[str]]]:
 def _node_arguments(cli_args: list[str]):
     """While active, the next ``Node.__init__`` call gets ``cli_args`` (module docstring)."""
     original = Node.__init__
-    used = []
+    used: list[bool] = []
 
     def init(self, *args, **kwargs):
         if not used:

@@ -29,7 +29,7 @@ from __future__ import annotations
 import inspect
 from contextlib import ExitStack
 from functools import partial
-from typing import Any
+from typing import Any, cast
 
 from rclpy.exceptions import InvalidHandle
 from rclpy.executors import (
@@ -79,10 +79,17 @@ class LeanExecutor(SingleThreadedExecutor):
         self._release()
         self.rebuilds += 1
         stack = ExitStack()
-        subs, timers, others, waitables = [], [], [], []
-        sub_h, tmr_h, cli_h, srv_h, gc_h = [], [], [], [], []
+        subs: list[Any] = []
+        timers: list[Any] = []
+        others: list[Any] = []
+        waitables: list[Any] = []
+        sub_h: list[Any] = []
+        tmr_h: list[Any] = []
+        cli_h: list[Any] = []
+        srv_h: list[Any] = []
+        gc_h: list[Any] = []
         n_events = 0
-        extra = {}
+        extra: dict[str, int] = {}
 
         def enter(entity, handles) -> bool:
             try:
@@ -114,12 +121,13 @@ class LeanExecutor(SingleThreadedExecutor):
             if gc is not None:
                 stack.enter_context(gc.handle)
                 gc_h.append(gc.handle)
-        stack.enter_context(self._context.handle)
+        context: Any = self._context.handle
+        stack.enter_context(context)
         self._wait_set = _rclpy.WaitSet(
             len(sub_h) + extra.get("subscriptions", 0),
             len(gc_h) + extra.get("guard_conditions", 0), len(tmr_h) + extra.get("timers", 0),
             len(cli_h) + extra.get("clients", 0), len(srv_h) + extra.get("services", 0),
-            n_events, self._context.handle)
+            n_events, context)
         self._held = stack
         self._subs, self._timers, self._others, self._waitables = subs, timers, others, \
             waitables
@@ -215,7 +223,7 @@ class LeanExecutor(SingleThreadedExecutor):
         else:
             result = sub.callback(*taken)
         if inspect.iscoroutine(result):
-            self.create_task(result)
+            self.create_task(cast(Any, result))
 
     def _call_timer(self, tmr) -> None:
         try:
@@ -238,7 +246,7 @@ class LeanExecutor(SingleThreadedExecutor):
                 actual_call_time=info["actual_call_time"], clock_type=tmr.clock.clock_type)})
         result = callback()
         if inspect.iscoroutine(result):
-            self.create_task(result)
+            self.create_task(cast(Any, result))
 
     def _run_task(self, entity, node, take) -> None:
         """Run a rare entity's callback through rclpy's task machinery, as its executor does."""
