@@ -63,6 +63,8 @@ PUMP_RISE = 75e5
 
 #: SCHED_FIFO priorities of the run's processes (1..99, higher preempts lower): the world
 #: first, then the bridge (CAN frames queue in its socket), then the model and the driver.
+#: the process name of can_bridge + estimator + controller with ``--one-process``
+CHAIN = "chain"
 RT_PRIORITY = {"rig_sim": 40, "can_bridge": 35, "estimator": 30, "controller": 30, "cli": 30}
 
 
@@ -96,6 +98,9 @@ def add_parser(sub) -> None:
                         "SCHED_FIFO where the OS allows it, so other work cannot starve the "
                         "live chain)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    p.add_argument("--one-process", action="store_true",
+                   help="can_bridge, estimator and controller in one process (process "
+                        "'chain', as clutch up --one-process)")
     p.set_defaults(func=run)
 
 
@@ -149,6 +154,8 @@ def run(args) -> int:
         _say(f"clutch demo: dashboard at ws://127.0.0.1:{args.dashboard_port} (Foxglove: open "
              "connection -> Foxglove WebSocket; layout params/clutch_dashboard.json)")
     procs = []
+    if getattr(args, "one_process", False):
+        specs = _one_process(specs)
     try:
         for name, node_args in specs.items():
             # The simulated rig stands in for hardware that keeps real time whatever the PC
@@ -156,8 +163,9 @@ def run(args) -> int:
             # nodes under test share this process's. On a 2-core machine with each node in a
             # session of its own, five equal shares of ~40 % left the rig (~40 % of a core at
             # 1 kHz) short, and it dropped 3-10 s of a 30 s run: a slowed world.
-            procs.append(NodeProcess(name, ["--ros-args", *node_args], env, out / "logs",
-                                     own_session=name == "rig_sim"))
+            cmd = node_args if name == CHAIN else ["--ros-args", *node_args]
+            procs.append(NodeProcess(name, cmd, env, out / "logs", own_session=name == "rig_sim",
+                                     executable="composed" if name == CHAIN else None))
         if not args.no_realtime:  # this process's driver and recorder (DDS threads inherit)
             report = apply_realtime(RealtimeSettings("fifo", RT_PRIORITY["cli"]))
             if report.refused:
@@ -172,7 +180,8 @@ def run(args) -> int:
             proc.stop()
     summary = _summarise(out, profile, driver, written, rated, args)
     # True when every process of the chain ran at SCHED_FIFO (policy per process alongside)
-    summary["realtime"] = all(policies.get(name) == "fifo" for name in RT_PRIORITY)
+    summary["realtime"] = all(policies.get(name, policies.get(CHAIN)) == "fifo"
+                              for name in RT_PRIORITY)
     summary["scheduling"] = policies
     if args.dashboard:
         summary["dashboard"] = f"ws://127.0.0.1:{args.dashboard_port}"
@@ -182,6 +191,15 @@ def run(args) -> int:
     else:
         _print_summary(summary)
     return 0
+
+
+def _one_process(specs: dict[str, list[str]]) -> dict[str, list[str]]:
+    """``--one-process``: the chain's node arguments as one ``composed`` command line."""
+    from clutch_ros.nodes.composed import composed_args
+
+    members = [(n, ["--ros-args", *specs.pop(n)]) for n in ("can_bridge", "estimator",
+                                                            "controller")]
+    return {**specs, CHAIN: composed_args(members)}
 
 
 def _rated_torque(params) -> float:
