@@ -3,7 +3,8 @@
     .venv/bin/python tools/uncertainty_coverage.py [--fit table3_seq2_10rpm] [--sim-seeds 2]
 
 Runs: the golden bags (tests/data/golden/bags) and, with ``--sim-seeds N``, N fresh runs of
-the simulated rig per golden scenario with other noise seeds (seed + 1000 * k). The error
+the golden bags' plant (``clutch_ros.offline.golden.PLANT``) per golden scenario with other
+noise seeds (seed + 1000 * k). The error
 model is fitted on the ``--fit`` golden run only; the table lists every other run.
 """
 
@@ -22,6 +23,7 @@ import numpy as np
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model import uncertainty as unc
+from clutch_ros.offline.golden import PLANT
 from clutch_ros.offline.replay import replay_bag, stamps_s
 from clutch_ros.offline.rig_runs import GOLDEN_RUNS, golden_scenario, simulate_run, write_run
 
@@ -39,7 +41,8 @@ def main() -> int:
     """Print (or ``--json``) the coverage table."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--fit", default="table3_seq2_10rpm")
-    ap.add_argument("--params", default="flexiforce_8")
+    ap.add_argument("--params", default="flexiforce_8",
+                    help="estimator parameters: a preset or a YAML file (e.g. of clutch fit)")
     ap.add_argument("--sim-seeds", type=int, default=0)
     ap.add_argument("--time-constant", type=float, default=unc.DEFAULTS.time_constant,
                     help="rate filter time constant of the error model [s]")
@@ -55,7 +58,8 @@ def main() -> int:
         for k in range(1, args.sim_seeds + 1):
             for name in GOLDEN_RUNS:
                 scenario, seed = golden_scenario(name)
-                run = simulate_run(scenario, seed=seed + 1000 * k, wheel_speeds=False)
+                run = simulate_run(scenario, seed=seed + 1000 * k, plant=PLANT,
+                                   wheel_speeds=False)
                 path = Path(tmp) / f"{name}_seed{seed + 1000 * k}"
                 write_run(path, run)
                 runs.append((path.name, path))
