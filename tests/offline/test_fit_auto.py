@@ -99,3 +99,18 @@ def test_pbd_spike_is_in_the_rigid_rig_and_the_fitted_model_reproduces_it(tmp_pa
     print(f"fitted model {modelled:.3f}, same model without film {no_film:.3f}")
     assert modelled == pytest.approx(measured, rel=0.03)
     assert no_film < 1.0 + 0.3 * (measured - 1.0)
+
+
+def test_validation_runs_of_one_name_are_refused_not_merged(tmp_path):
+    """The ratio table is keyed by run name: two bags of one name would share a column."""
+    import shutil
+
+    from clutch_ros.model.fit_data import IdentificationError
+
+    copies = []
+    for rig in ("rig_a", "rig_b"):
+        copies.append(tmp_path / rig / "table3_seq1_10rpm")
+        shutil.copytree(BAGS / "table3_seq1_10rpm", copies[-1])
+    validation, _ = load_runs(copies, BASE.pack.piston_area, pdiff=False)
+    with pytest.raises(IdentificationError, match="share the name.*table3_seq1_10rpm"):
+        fit_auto(_runs("table3_seq2_10rpm"), validation, BASE, laws=("none",))
