@@ -27,7 +27,7 @@ from contextlib import contextmanager
 
 from rclpy.node import Node
 
-from clutch_ros.nodes.runner import DEFAULT_EXECUTOR, run_nodes
+from clutch_ros.nodes.runner import executor_option, run_nodes
 
 __all__ = ["COMPOSABLE", "NODE_FLAG", "composed_args", "main", "parse_groups"]
 
@@ -104,9 +104,7 @@ def main(args=None) -> int:
     if not argv or argv[0] in ("-h", "--help"):
         sys.stdout.write(__doc__ + f"\ncomposable nodes: {', '.join(COMPOSABLE)}\n")
         return 0
-    executor = DEFAULT_EXECUTOR
-    if argv[0] == "--executor" and len(argv) > 1:  # as a node's --executor (runner.py)
-        executor, argv = argv[1], argv[2:]
+    executor, argv = executor_option(argv)  # --executor KIND, as a node takes it
     try:
         groups = parse_groups(argv)
     except ValueError as err:

@@ -40,8 +40,8 @@ from clutch_ros.nodes.realtime import (
     declare_realtime,
 )
 
-__all__ = ["DEFAULT_EXECUTOR", "EVENTS_WARNING", "make_executor", "run_node", "run_nodes",
-           "start_realtime"]
+__all__ = ["DEFAULT_EXECUTOR", "EVENTS_WARNING", "executor_option", "make_executor", "run_node",
+           "run_nodes", "start_realtime"]
 
 
 #: Executor the nodes spin by default. SingleThreadedExecutor: measured by
@@ -76,7 +76,7 @@ def make_executor(kind: str = DEFAULT_EXECUTOR):
     raise ValueError(f"unknown executor {kind!r} (single, lean or events)")
 
 
-def _executor_option(argv: list[str]) -> tuple[str, list[str]]:
+def executor_option(argv: list[str]) -> tuple[str, list[str]]:
     """Take ``--executor KIND`` (before ``--ros-args``) out of ``argv``."""
     kind = DEFAULT_EXECUTOR
     out: list[str] = []
@@ -135,7 +135,7 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     if help_requested(argv):
         sys.stdout.write(format_help(name, doc, [*specs, *REALTIME_PARAMS]))
         return 0
-    executor_kind, argv = _executor_option(argv)
+    executor_kind, argv = executor_option(argv)
     return run_nodes(name, [factory], argv, executor_kind)
 
 
