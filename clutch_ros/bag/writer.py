@@ -248,7 +248,10 @@ class BagWriter:
         quiet the topics are. Returns True when a chunk was closed (False for sqlite3).
         """
         storage = self._writer.storage if self._writer is not None else None
-        return isinstance(storage, ChunkedMcapWriter) and storage.close_if_due(ahead)
+        try:
+            return isinstance(storage, ChunkedMcapWriter) and storage.close_if_due(ahead)
+        except OSError as err:
+            raise BagError(self.path, f"cannot close the open chunk: {err}") from err
 
     def __enter__(self) -> BagWriter:
         return self.open()
