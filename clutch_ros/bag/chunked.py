@@ -15,10 +15,11 @@ and writes through a buffered file: a recorder killed after 12 s of 200 Hz RigSt
   system as soon as they are written (a crash of the process loses only the open chunk) and,
   with :attr:`ChunkPolicy.sync`, fsync'd (a power cut too).
 
-The fsync runs on a thread of its own (:class:`_Syncer`), not on the writer's: on a busy disk
-one took 0.1-1.2 s, and on the recorder's executor thread that stalled every callback sharing
-it (in ``clutch demo`` the torque-request driver: 1.2 s without requests sent the controller to
-its fail-safe). The data is with the operating system before the fsync starts, so a crash or a
+The fsync runs on a thread of its own (:class:`_Syncer`), not on the writer's: an fsync waits
+for the disk, and on the recorder's executor thread that wait stalls every callback sharing it.
+In a ``clutch demo`` beside two CPU hogs, the process of the recorder and the torque-request
+driver stalled for 0.05-0.1 s about once a second, in step with the 1 s chunk closes, and once
+for 1.2 s: the requests stopped and the controller went to its fail-safe. The data is with the operating system before the fsync starts, so a crash or a
 kill of the process still loses only the open chunk; a power cut loses the open chunk and the
 one whose fsync is under way. An fsync error (a full or failing disk) is raised by the next
 write, chunk or close of the writer, so it is never lost either; :attr:`ChunkedMcapWriter.syncs`
