@@ -1,4 +1,7 @@
-"""A single-threaded executor that does less per wake-up than rclpy's own (``--executor lean``).
+"""A single-threaded executor that does less per wake-up than rclpy's own: the nodes' default.
+
+:func:`clutch_ros.nodes.runner.make_executor` ``"lean"``; ``--executor single`` (before
+``--ros-args``) runs a node on rclpy's SingleThreadedExecutor instead.
 
 rclpy 9's :class:`~rclpy.executors.SingleThreadedExecutor` pays, for every callback, work that
 is not the callback: it gathers every entity of every node into a new wait set (each
