@@ -203,10 +203,10 @@ def _measure(cmd: list[str], out_topic: str, out_type, rates: list[float], secon
                 proc.wait(10)
             except subprocess.TimeoutExpired:
                 proc.kill()
-        executor.shutdown()
+        executor.shutdown()  # wakes the spin thread, which releases its handles and ends
+        spin.join(5.0)
         node.destroy_node()
         rclpy.try_shutdown()
-        spin.join(5.0)
     received: dict[str, list[tuple[float, float]]] = {"warmup": []}
     for when, raw in got:
         stamp, frame = _stamp_and_frame(raw)

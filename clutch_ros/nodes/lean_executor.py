@@ -153,8 +153,11 @@ class LeanExecutor(SingleThreadedExecutor):
             self._release()
 
     def shutdown(self, timeout_sec: float | None = None) -> bool:
-        """Shut down as rclpy's executor, releasing the kept handles."""
-        self._release()
+        """Shut down as rclpy's executor.
+
+        The kept handles are released by the spin that holds them, when it ends (this wakes
+        it), never here: shutdown may come from another thread while that spin waits on them.
+        """
         return super().shutdown(timeout_sec)
 
     def _lean_once(self, timeout_sec: float | None) -> None:
