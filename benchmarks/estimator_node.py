@@ -1,23 +1,32 @@
 """Benchmark of the estimator node against a bare rclpy echo node, over DDS, same messages.
 
 ``python -m benchmarks.estimator_node`` starts, one after the other, node processes that turn
-each RigState into one output message:
+each RigState into one output message, each with every executor of ``--executors`` (default
+``lean,single``: the nodes' default :class:`~clutch_ros.nodes.lean_executor.LeanExecutor` and
+rclpy's SingleThreadedExecutor; ``events`` adds rclpy.experimental.EventsExecutor):
 
-* ``echo``: a bare rclpy node republishing every RigState as it came (the baseline), with a
-  best-effort output, and again with a reliable output like the estimator's ClutchEstimate
-  (reliable delivery repairs losses by retransmission, which shows in the latency tail, so
-  that row separates the transport's share of the estimator's p99 from the node's own);
-* ``estimator``: the estimator node (flexiforce_8 preset), with the SingleThreadedExecutor and
-  with ``rclpy.experimental.EventsExecutor``.
+* ``echo``: a bare rclpy node republishing every RigState as it came (the baseline: the hop
+  cost of rclpy and DDS without the estimator's work), best-effort output; and once, with the
+  first executor, with a reliable output like the estimator's ClutchEstimate (reliable
+  publishers keep a history and heartbeat; that row shows the transport's share);
+* ``estimator``: the estimator node (flexiforce_8 preset).
 
 For each it measures, with a publisher process (``bench pub``) feeding the node under test
-and this process receiving its output in a thread of its own (so the probe is never the
-bottleneck; its overhead is in every row alike):
+and this process receiving its output in a thread of its own:
 
 * for each input rate of ``--rates`` (``--seconds`` each, sensor-data QoS as on the rig): the
   fraction of inputs that came out, and the latency (output receive time minus the input's
   publish time, carried in its header stamp), median and p99 [ms];
 * the sustained rate: the highest input rate with >= 99 % of the inputs out.
+
+The publisher and the receiver are the measuring instrument, so they are as lean as rclpy
+allows, and their share is in every row alike: no parameter services, no rosout; the
+publisher stamps each message just before ``publish`` and never spins; the receiver
+subscribes best effort (as the controller takes ``clutch_estimate``), raw (no message is
+deserialised: the stamp and frame_id are read from the CDR bytes after the run), spins a
+LeanExecutor in a thread, and collects no garbage while it measures. DDS: the wheels' only
+rmw, Fast DDS (``rmw_fastrtps_cpp``), with its default synchronous publication (``publish``
+writes in the caller's thread) and shared-memory transport between local processes.
 
 Targets: the estimator sustains >= 2 kHz and reaches >= 70 % of the echo node's throughput;
 its p99 latency at 1 kHz is below 1 ms. Figures vary with machine load; run it on a quiet
@@ -30,10 +39,13 @@ refuses, the rows say so and the run goes on at the normal policy.
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import random
+import struct
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 
@@ -44,6 +56,9 @@ __all__ = ["main"]
 ECHO = "echo"
 ECHO_RELIABLE = "echo-reliable"
 PUB = "pub"
+EXECUTORS = ("lean", "single", "events")
+WARMUP_MAX_S = 60.0  # [s] the publisher's warm-up ends at the latest after this
+READY_AFTER = 50  # outputs received before the measured steps start
 
 
 def _echo_main(reliable: bool) -> int:
@@ -73,9 +88,10 @@ def _pub_main(argv: list[str]) -> int:
     from clutch_ros.nodes.qos import sensor_qos
 
     seconds, rates = float(argv[0]), [float(r) for r in argv[1].split(",")]
-    priority = int(argv[2])
-    rclpy.init(args=[sys.argv[0], *argv[3:]])
-    node = rclpy.create_node(f"bench_pub_{os.getpid()}")
+    priority, ready = int(argv[2]), argv[3]
+    rclpy.init(args=[sys.argv[0], *argv[4:]])
+    node = rclpy.create_node(f"bench_pub_{os.getpid()}", start_parameter_services=False,
+                             enable_rosout=False)  # the instrument: nothing it does not need
     _realtime(priority)
     pub = node.create_publisher(RigState, "rig_state", sensor_qos())
     msg = RigState()
@@ -91,8 +107,10 @@ def _pub_main(argv: list[str]) -> int:
 
     while pub.get_subscription_count() < 1:  # the node under test
         time.sleep(0.05)
-    end = time.monotonic() + 3.0
-    while time.monotonic() < end:  # warm-up: discovery of the output side settles
+    start = time.monotonic()
+    # warm-up: 3 s, and until the receiver has the node's output (file ``ready`` exists)
+    while time.monotonic() < start + 3.0 or (not os.path.exists(ready)
+                                             and time.monotonic() < start + WARMUP_MAX_S):
         send("warmup")
         time.sleep(0.01)
     for rate in rates:  # frame_id names the step: "1000", "2000", ...
@@ -118,58 +136,88 @@ def _realtime(priority: int) -> str:
     return report.message()
 
 
-def _measure(cmd: list[str], out_topic: str, out_type, reliable: bool, rates: list[float],
-             seconds: float, priority: int = 0) -> dict:
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
+def _stamp_and_frame(raw: bytes) -> tuple[float, str]:
+    """Header stamp [s] and frame_id of a serialised message that starts with a Header.
 
-    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+    CDR: a 4-byte encapsulation header (byte 1: 1 little endian, 0 big endian), then
+    ``int32 sec``, ``uint32 nanosec``, ``uint32`` string length (with its NUL), the chars.
+    """
+    order = "<" if raw[1] & 1 else ">"
+    sec, nanosec, length = struct.unpack_from(order + "iII", raw, 4)
+    return sec + nanosec * 1e-9, raw[16:16 + length - 1].decode()
+
+
+def _measure(cmd: list[str], out_topic: str, out_type, rates: list[float], seconds: float,
+             priority: int = 0) -> dict:
+    import rclpy
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    from clutch_ros.nodes.lean_executor import LeanExecutor
 
     domain = str(random.randint(150, 230))
     os.environ.update(ROS_DOMAIN_ID=domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    received: dict[str, list[tuple[float, float]]] = {"warmup": []}
+    got: list[tuple[float, bytes]] = []  # (receive time [s], serialised message)
+    record = got.append
 
-    def on_output(msg) -> None:
-        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        received.setdefault(msg.header.frame_id, []).append((time.time(), stamp))
+    def on_output(raw: bytes) -> None:
+        record((time.time(), raw))
 
     rclpy.init()
-    node = rclpy.create_node(f"bench_sink_{os.getpid()}")
-    qos = reliable_qos(depth=1000) if reliable else sensor_qos()
-    node.create_subscription(out_type, out_topic, on_output, qos)
-    # SingleThreadedExecutor: EventsExecutor spun in a background thread was seen to hang
-    # here (busy, no callbacks); the main thread only waits, so the GIL is free for it.
-    executor = SingleThreadedExecutor()
+    node = rclpy.create_node(f"bench_sink_{os.getpid()}", start_parameter_services=False,
+                             enable_rosout=False)
+    # best effort (as the controller reads clutch_estimate), deep enough never to overwrite
+    qos = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST,
+                     depth=10000)
+    node.create_subscription(out_type, out_topic, on_output, qos, raw=True)
+    executor = LeanExecutor()
     executor.add_node(node)
     sink_rt = _realtime(priority)
     spin = threading.Thread(target=executor.spin, daemon=True)
     spin.start()
     under_test = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL,
                                   stderr=subprocess.DEVNULL)
+    ready = tempfile.NamedTemporaryFile(prefix="bench_ready_", delete=False).name
+    os.unlink(ready)  # created once output arrives: the publisher's warm-up then ends
     publisher = subprocess.Popen([sys.executable, "-m", "benchmarks.estimator_node", PUB,
                                   str(seconds), ",".join(f"{r:.0f}" for r in rates),
-                                  str(priority)], env=env)
+                                  str(priority), ready], env=env)
+    gc.collect()
+    gc.freeze()
+    gc.disable()  # no collection pauses the receiver while it measures
     try:
-        publisher.wait(timeout=120 + (seconds + 1.0) * len(rates))
+        deadline = time.monotonic() + WARMUP_MAX_S + 60.0
+        while len(got) < READY_AFTER and publisher.poll() is None \
+                and time.monotonic() < deadline:
+            time.sleep(0.05)
+        open(ready, "w").close()
+        publisher.wait(timeout=WARMUP_MAX_S + 120 + (seconds + 1.0) * len(rates))
         time.sleep(1.0)
     finally:
+        gc.enable()
+        if os.path.exists(ready):
+            os.unlink(ready)
         for proc in (publisher, under_test):
             proc.terminate()
             try:
                 proc.wait(10)
             except subprocess.TimeoutExpired:
                 proc.kill()
-        executor.shutdown()
+        executor.shutdown()  # wakes the spin thread, which releases its handles and ends
+        spin.join(5.0)
         node.destroy_node()
         rclpy.try_shutdown()
+    received: dict[str, list[tuple[float, float]]] = {"warmup": []}
+    for when, raw in got:
+        stamp, frame = _stamp_and_frame(raw)
+        received.setdefault(frame, []).append((when, stamp))
     if not received["warmup"]:
         raise RuntimeError(f"no output from {' '.join(cmd)}")
     steps = {}
     for rate in rates:
-        got = received.get(f"{rate:.0f}", [])
-        lat = np.array([r - s for r, s in got]) * 1e3
-        steps[rate] = {"delivered": len(got) / (seconds * rate),
+        step = received.get(f"{rate:.0f}", [])
+        lat = np.array([r - s for r, s in step]) * 1e3
+        steps[rate] = {"delivered": len(step) / (seconds * rate),
                        "lat_median_ms": float(np.median(lat)) if lat.size else float("nan"),
                        "lat_p99_ms": float(np.percentile(lat, 99)) if lat.size else float("nan")}
     lossless = [r for r in rates if steps[r]["delivered"] >= 0.99]
@@ -190,9 +238,15 @@ def main(argv=None) -> int:
     parser.add_argument("--realtime", type=int, default=0, metavar="PRIORITY",
                         help="run publisher, node under test and receiver at SCHED_FIFO of this "
                              "priority (1..99) with locked memory; 0 (default): normal policy")
+    parser.add_argument("--executors", default="lean,single",
+                        help="executors of the echo and estimator rows, comma separated "
+                             "(lean, single, events)")
     args = parser.parse_args(argv)
     if not 0 <= args.realtime <= 99:
         parser.error(f"--realtime: a priority 1..99 (or 0 for off), got {args.realtime}")
+    executors = args.executors.split(",")
+    if not executors or set(executors) - set(EXECUTORS):
+        parser.error(f"--executors: some of {', '.join(EXECUTORS)}, got {args.executors!r}")
     rt_args = (["-p", "rt.policy:=fifo", "-p", f"rt.priority:={args.realtime}",
                 "-p", "rt.lock_memory:=true"] if args.realtime else [])
     from clutch_msgs.msg import ClutchEstimate, RigState
@@ -201,26 +255,26 @@ def main(argv=None) -> int:
 
     py = sys.executable
     preset = str(preset_path("flexiforce_8"))
-    est = ["-m", "clutch_ros.nodes.estimator"]
     est_args = ["--ros-args", "--params-file", preset, "-p", "estimator.max_sample_age:=0.0",
                 *rt_args]
-    echo = [py, "-m", "benchmarks.estimator_node"]
-    rows = [  # name, command, output topic and type, output reliable
-        ("bare rclpy echo (single)", [*echo, ECHO, "--ros-args", *rt_args], "bench_out",
-         RigState, False),
-        ("echo, reliable output", [*echo, ECHO_RELIABLE, "--ros-args", *rt_args], "bench_out",
-         RigState, True),
-        ("estimator (SingleThreadedExecutor)", [py, *est, "--executor", "single", *est_args],
-         "clutch_estimate", ClutchEstimate, True),
-        ("estimator (EventsExecutor)", [py, *est, "--executor", "events", *est_args],
-         "clutch_estimate", ClutchEstimate, True),
-    ]
+    me = [py, "-m", "benchmarks.estimator_node"]
+    rows = []  # name, command, output topic and type
+    for i, ex in enumerate(executors):
+        rows.append((f"bare rclpy echo ({ex})", [*me, ECHO, "--executor", ex, "--ros-args",
+                                                 *rt_args], "bench_out", RigState))
+        if i == 0:
+            rows.append((f"echo, reliable output ({ex})", [*me, ECHO_RELIABLE, "--executor", ex,
+                                                           "--ros-args", *rt_args],
+                         "bench_out", RigState))
+    rows += [(f"estimator ({ex})", [py, "-m", "clutch_ros.nodes.estimator", "--executor", ex,
+                                    *est_args], "clutch_estimate", ClutchEstimate)
+             for ex in executors]
     rates = [float(r) for r in args.rates.split(",")]
     results = {}
     print(f"{'node':38s} {'sustained':>10s}  per input rate: delivered, median/p99 latency [ms]")
-    for name, cmd, topic, typ, reliable in rows:
+    for name, cmd, topic, typ in rows:
         try:
-            r = _measure(cmd, topic, typ, reliable, rates, args.seconds, args.realtime)
+            r = _measure(cmd, topic, typ, rates, args.seconds, args.realtime)
         except RuntimeError as err:
             print(f"{name:38s} {'failed':>10s}  {err}", flush=True)
             continue

@@ -11,7 +11,9 @@ ROS domain of its own) and a publisher process feeding it ``RigState`` at ``--ra
 * ``lifecycle``: a lifecycle node (as ``can_bridge``: 6 more services) echoing;
 * ``timer``: no input; a no-op timer at ``--rate`` (the cost of one timer wake-up);
 
-each with rclpy's SingleThreadedExecutor (``single``) and :class:`LeanExecutor` (``lean``).
+each with rclpy's SingleThreadedExecutor (``single``) and :class:`LeanExecutor` (``lean``,
+the nodes' default); ``--executors events`` adds rclpy.experimental.EventsExecutor (with
+these wheels it ignores SIGTERM: its probe is then killed).
 Rows: CPU per second [core] and per message (or timer call) [ms]. Figures depend on machine
 load (the CPU time of a wake-up grows when other processes evict the caches): compare rows
 of one run.
@@ -98,7 +100,11 @@ def _measure(variant: str, executor: str, rate: float, seconds: float, warmup: f
         for proc in (pub, probe):
             if proc is not None:
                 proc.terminate()
-                proc.wait(10)
+                try:
+                    proc.wait(10)
+                except subprocess.TimeoutExpired:  # --executors events ignores the signal
+                    proc.kill()
+                    proc.wait(10)
     if c0 is None or c1 is None:
         raise RuntimeError(f"probe {variant}/{executor} exited early")
     core = (c1 - c0) / (t1 - t0)

@@ -41,7 +41,7 @@ from clutch_ros.model import SampleRejected
 from clutch_ros.model.adaptation import AdaptiveEstimator
 from clutch_ros.model.uncertainty import TorqueStd
 from clutch_ros.nodes.adapt_params import ADAPT_PARAMS, adapt_settings
-from clutch_ros.nodes.convert import EstimateMessage
+from clutch_ros.nodes.convert import CdrCodec, EstimateEncoder
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.loss_tracker import LossTracker
 from clutch_ros.nodes.model_params import (
@@ -53,13 +53,15 @@ from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec, declare_pa
 from clutch_ros.nodes.peers import Input, PeerWatch
 from clutch_ros.nodes.qos import publisher_qos, subscriber_qos
 from clutch_ros.nodes.runner import run_node
-from clutch_ros.nodes.stamps import stamp_to_sec
 from clutch_ros.nodes.uncertainty_params import UNCERTAINTY_PARAMS, error_model
 from clutch_ros.offline.adapt import save_adapted_params
 
 NAME = "estimator"
 _RIG_STATE, _CLUTCH_ESTIMATE = interfaces.RIG_STATE.name, interfaces.CLUTCH_ESTIMATE.name
 DRAIN_MAX = 50  # queued rig_state samples taken per callback, beyond the one it was called for
+#: the RigState fields the estimator reads (their positions in CdrCodec(RigState).names)
+_INPUTS = ("header.stamp.sec", "header.stamp.nanosec", "header.frame_id", "actuating_pressure",
+           "lamella_temperature", "slip_speed", "measured_torque", "has_measured_torque")
 PARAMS = [
     ParamSpec("estimator.max_sample_age", 0.5, "skip samples whose stamp is older than this "
               "relative to the node clock; 0 disables the check", "s", 0.0, 3600.0),
@@ -102,7 +104,12 @@ class EstimatorNode(Node):
         self._warn = LogThrottle(5.0)
         self._pub = self.create_publisher(_msg_type(), _CLUTCH_ESTIMATE,
                                           publisher_qos(_CLUTCH_ESTIMATE))
-        self._out = EstimateMessage(self._pub.msg_type)
+        # rig_state taken raw and read by a compiled CDR reader, the estimate written as
+        # bytes: no message object per sample (nodes/convert.py CdrCodec)
+        self._encode = EstimateEncoder(self._pub.msg_type).encode
+        rig_codec = CdrCodec(_rig_state_type())
+        self._decode = rig_codec.decode
+        self._inputs = [rig_codec.names.index(name) for name in _INPUTS]
         self._published = 0
         self._until_publish = 0  # accepted estimates to skip before the next publish
         # The node clock's C handle: its get_now() is the node's time (ROS time, /clock with
@@ -115,14 +122,14 @@ class EstimatorNode(Node):
         self._loss.add_topic(_RIG_STATE)
         self._sub = self.create_subscription(
             _rig_state_type(), _RIG_STATE, self._on_rig_state,
-            subscriber_qos(_RIG_STATE, depth=self._cfg["estimator.queue_depth"]))
+            subscriber_qos(_RIG_STATE, depth=self._cfg["estimator.queue_depth"]), raw=True)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
         self.get_logger().info(f"estimating with spline law '{self._params.spline.law}', "
                                f"{self._params.pack.lamella_count} lamellas")
 
-    def _on_rig_state(self, msg, info) -> None:
-        """Estimate ``msg``, then the samples queued behind it (at most ``DRAIN_MAX``).
+    def _on_rig_state(self, msg: bytes, info) -> None:
+        """Estimate ``msg`` (serialised), then the samples queued behind it (``DRAIN_MAX``).
 
         Taking the queued samples here, as rclpy's executor would (``take_message`` on the
         subscription handle), skips one executor iteration per sample, which costs more than
@@ -132,12 +139,12 @@ class EstimatorNode(Node):
         handle, msg_type = self._sub.handle, self._sub.msg_type
         with handle:
             for _ in range(DRAIN_MAX):
-                taken = handle.take_message(msg_type, False)
+                taken = handle.take_message(msg_type, True)
                 if taken is None:
                     return
                 self._on_sample(*taken)
 
-    def _on_sample(self, msg, info) -> None:
+    def _on_sample(self, msg: bytes, info) -> None:
         lost = self._loss.received(_RIG_STATE, info)
         if lost:
             self._skip("lost_in_transport", f"{lost} rig_state samples lost before this one",
@@ -149,18 +156,20 @@ class EstimatorNode(Node):
                 return
             self._skip("internal_error", f"{type(err).__name__}: {err}")
 
-    def _estimate(self, msg) -> None:
+    def _estimate(self, raw: bytes) -> None:
         now = self._clock_handle.get_now().nanoseconds * 1e-9  # [s] node clock
         self._peers.seen("rig data", now)
-        stamp = stamp_to_sec(msg.header.stamp)
+        values = self._decode(raw)
+        sec, nanosec, frame_id, pressure, temperature, slip, torque, has_torque = (
+            values[i] for i in self._inputs)
+        stamp = interfaces.stamp_to_s(sec, nanosec)
         max_age = self._cfg["estimator.max_sample_age"]
         if max_age > 0.0 and now - stamp > max_age:
             self._skip("stale", f"sample {now - stamp:.3f} s old (> {max_age} s)")
             return
-        measured = msg.measured_torque if msg.has_measured_torque else math.nan
+        measured = torque if has_torque else math.nan
         try:
-            res = self._estimator.update(stamp, msg.actuating_pressure,
-                                         msg.lamella_temperature, msg.slip_speed, measured)
+            res = self._estimator.update(stamp, pressure, temperature, slip, measured)
         except SampleRejected as err:
             self._skip(type(err).__name__, str(err))
             return
@@ -174,7 +183,7 @@ class EstimatorNode(Node):
             self._until_publish -= 1
             return
         self._until_publish = self._cfg["estimator.publish_every"] - 1
-        self._pub.publish(self._out.fill(est, res.adaptation, msg.header, std))
+        self._pub.publish(self._encode(est, res.adaptation, sec, nanosec, frame_id, std))
         self._published += 1
 
     def _skip(self, kind: str, why: str, count: int = 1) -> None:

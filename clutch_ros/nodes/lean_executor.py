@@ -1,4 +1,7 @@
-"""A single-threaded executor that does less per wake-up than rclpy's own (``--executor lean``).
+"""A single-threaded executor that does less per wake-up than rclpy's own: the nodes' default.
+
+:func:`clutch_ros.nodes.runner.make_executor` ``"lean"``; ``--executor single`` (before
+``--ros-args``) runs a node on rclpy's SingleThreadedExecutor instead.
 
 rclpy 9's :class:`~rclpy.executors.SingleThreadedExecutor` pays, for every callback, work that
 is not the callback: it gathers every entity of every node into a new wait set (each
@@ -150,8 +153,11 @@ class LeanExecutor(SingleThreadedExecutor):
             self._release()
 
     def shutdown(self, timeout_sec: float | None = None) -> bool:
-        """Shut down as rclpy's executor, releasing the kept handles."""
-        self._release()
+        """Shut down as rclpy's executor.
+
+        The kept handles are released by the spin that holds them, when it ends (this wakes
+        it), never here: shutdown may come from another thread while that spin waits on them.
+        """
         return super().shutdown(timeout_sec)
 
     def _lean_once(self, timeout_sec: float | None) -> None:

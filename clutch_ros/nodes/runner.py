@@ -32,6 +32,7 @@ from rclpy.node import Node
 
 from clutch_ros.errors import ClutchError
 from clutch_ros.nodes.diagnostics import Diagnostics
+from clutch_ros.nodes.lean_executor import LeanExecutor
 from clutch_ros.nodes.parameters import ParamSpec, format_help, help_requested
 from clutch_ros.nodes.realtime import (
     REALTIME_PARAMS,
@@ -44,17 +45,19 @@ __all__ = ["DEFAULT_EXECUTOR", "EVENTS_WARNING", "executor_option", "make_execut
            "run_nodes", "start_realtime"]
 
 
-#: Executor the nodes spin by default. SingleThreadedExecutor: measured by
-#: ``python -m benchmarks.estimator_node`` against rclpy.experimental.EventsExecutor (figures in
-#: the README); ``--executor events`` before ``--ros-args`` selects the other one.
-DEFAULT_EXECUTOR = "single"
+#: Executor the nodes spin by default: :class:`~clutch_ros.nodes.lean_executor.LeanExecutor`,
+#: rclpy's SingleThreadedExecutor without its per-callback overhead (about half the CPU per
+#: wake-up, ``python -m benchmarks.wakeup_probe``; figures in benchmarks/RESULTS.md).
+#: ``--executor single`` (before ``--ros-args``) selects rclpy's own, ``--executor events``
+#: rclpy.experimental.EventsExecutor (not usable with these wheels: :data:`EVENTS_WARNING`).
+DEFAULT_EXECUTOR = "lean"
 
 
 #: Logged when ``--executor events`` is chosen: what the EventsExecutor did here.
 EVENTS_WARNING = ("--executor events is experimental: with the rclpy 9.1.2 wheels from PyPI "
                   "it ran no subscription or timer callbacks after the first spin and ignored "
-                  "SIGINT; use the default (single) unless your rclpy build was checked with "
-                  "'python -m benchmarks.estimator_node'")
+                  "SIGINT; use the default (lean) or single unless your rclpy build was checked "
+                  "with 'python -m benchmarks.estimator_node'")
 
 
 def make_executor(kind: str = DEFAULT_EXECUTOR):
@@ -64,8 +67,6 @@ def make_executor(kind: str = DEFAULT_EXECUTOR):
     rclpy's EventsExecutor.
     """
     if kind == "lean":
-        from clutch_ros.nodes.lean_executor import LeanExecutor
-
         return LeanExecutor()
     if kind == "events":
         from rclpy.experimental import EventsExecutor  # experimental: loaded only when chosen

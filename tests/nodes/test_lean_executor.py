@@ -27,10 +27,13 @@ class _Lean(Node):
         self.received: list = []
         self.ticks = 0
         self.late_ticks = 0
+        self.new_ticks = 0  # of the timer that replaces the first one at run time
+        self.guarded = 0
+        self.guard = self.create_guard_condition(self._on_guard)
         self.declare_parameter("gain", 1.0)
         self.add_on_set_parameters_callback(self._on_set)
         self.create_subscription(RigState, "rig_state", self._on_rig, sensor_qos())
-        self.create_timer(0.02, self._tick)
+        self._timer = self.create_timer(0.02, self._tick)
 
     def _on_set(self, params):
         bad = [p for p in params if p.name == "gain" and p.value < 0.0]
@@ -46,6 +49,15 @@ class _Lean(Node):
 
     def _late_tick(self) -> None:
         self.late_ticks += 1
+        if self.late_ticks == 3:  # a timer destroyed and another made, as a rate change does
+            self.destroy_timer(self._timer)
+            self._timer = self.create_timer(0.02, self._new_tick)
+
+    def _new_tick(self) -> None:
+        self.new_ticks += 1
+
+    def _on_guard(self) -> None:
+        self.guarded += 1
 
 
 def _set(peer: Harness, value: float):
@@ -85,9 +97,12 @@ def test_lean_executor_runs_every_entity_kind_and_stops_on_context_shutdown():
                 nonlocal sent
                 pub.publish(rig_state(sent * 0.01))
                 sent += 1
-                return len(node.received) >= 20 and node.late_ticks >= 3
+                return len(node.received) >= 20 and node.late_ticks >= 3 and node.new_ticks >= 3
 
-            peer.spin_until(feed, 30.0, "20 messages and the late timer on the lean node")
+            peer.spin_until(feed, 30.0, "20 messages and the late and new timers")
+            ticks = node.ticks
+            node.guard.trigger()  # from this thread, as another thread of a node would
+            peer.spin_until(lambda: node.guarded == 1, 30.0, "the guard condition's callback")
             assert _set(peer, 2.5).successful
             refused = _set(peer, -1.0)
             assert not refused.successful and "gain must be >= 0" in refused.reason
@@ -97,7 +112,7 @@ def test_lean_executor_runs_every_entity_kind_and_stops_on_context_shutdown():
     assert not thread.is_alive(), "spin did not end after the context shut down"
     assert not errors, errors
     assert node.get_parameter("gain").value == 2.5
-    assert node.ticks >= 5
+    assert node.ticks >= 5 and node.ticks == ticks  # the destroyed timer ran no more
     assert executor.rebuilds >= 2  # the late timer made it rebuild the wait set
     assert all(m.actuating_pressure == node.received[0].actuating_pressure
                for m in node.received)
