@@ -19,11 +19,12 @@ The fsync runs on a thread of its own (:class:`_Syncer`), not on the writer's: a
 for the disk, and on the recorder's executor thread that wait stalls every callback sharing it.
 In a ``clutch demo`` beside two CPU hogs, the process of the recorder and the torque-request
 driver stalled for 0.05-0.1 s about once a second, in step with the 1 s chunk closes, and once
-for 1.2 s: the requests stopped and the controller went to its fail-safe. The data is with the operating system before the fsync starts, so a crash or a
-kill of the process still loses only the open chunk; a power cut loses the open chunk and the
-one whose fsync is under way. An fsync error (a full or failing disk) is raised by the next
-write, chunk or close of the writer, so it is never lost either; :attr:`ChunkedMcapWriter.syncs`
-and :attr:`~ChunkedMcapWriter.sync_max_s` say how many fsyncs ran and the longest [s].
+for 1.2 s: the requests stopped and the controller went to its fail-safe. The data is with
+the operating system before the fsync starts, so a crash or a kill of the process still loses
+only the open chunk; a power cut loses the open chunk and the one whose fsync is under way.
+An fsync error (a full or failing disk) is raised by the next write, chunk or close of the
+writer, so it is never lost either; :attr:`ChunkedMcapWriter.syncs` and
+:attr:`~ChunkedMcapWriter.sync_max_s` say how many fsyncs ran and the longest [s].
 
 The file stays the MCAP rosbags writes (schemas and channels inside the chunk that follows
 them, message indexes after each chunk, the summary at close). A killed writer leaves a file
