@@ -101,7 +101,7 @@ def help_requested(argv: Sequence[str]) -> bool:
 
 def format_help(name: str, doc: str, specs: Iterable[ParamSpec]) -> str:
     """Return the ``--help`` text of node ``name``."""
-    lines = [f"usage: ros2 run clutch_ros {name} [--executor single|events] [--ros-args "
+    lines = [f"usage: ros2 run clutch_ros {name} [--executor lean|single|events] [--ros-args "
              "--params-file FILE -p NAME:=VALUE -r __ns:=/NS ...]", "", doc.strip(), "",
              "parameters:"]
     lines += [f"  {spec.describe()}" for spec in specs]
