@@ -2,12 +2,17 @@
 
     .venv/bin/python tools/uncertainty_coverage.py [--fit table3_seq2_10rpm[,run...]]
         [--sim-seeds 2] [--plant rig_truth_elastic] [--params flexiforce_8] [--no-golden]
+        [--exclude run,...] [--fit-on-plant] [--write-fit-runs DIR]
 
 Runs: the golden bags (tests/data/golden/bags) and, with ``--sim-seeds N``, N fresh runs of
 the simulated rig (truth plant ``--plant``, default the golden bags' ``rig_truth_elastic``)
 per golden scenario with other noise seeds (seed + 1000 * k). The error model is fitted on
 the ``--fit`` golden run(s) only (comma-separated, joined as ``fit_error_model_on_bags``
-does); the table lists every other run (never a fitted one).
+does); the table lists every other golden run (never a fitted one, nor an ``--exclude`` one:
+the runs the ``--params`` were fitted on). ``--fit-on-plant``: the ``--fit`` runs are
+simulated on ``--plant`` with the golden seeds (k = 0; the listed runs have k >= 1), for a
+rig other than the golden bags'; ``--write-fit-runs DIR`` writes those runs as bags (to fit
+the estimator's parameters on them with ``clutch fit``) and exits.
 """
 
 from __future__ import annotations
@@ -39,6 +44,14 @@ def _series(bag: Path, params):
             b.slip_speed_filtered, b.actuating_pressure)
 
 
+def _simulate(name: str, k: int, plant: str, path: Path) -> Path:
+    """Write the golden scenario ``name`` simulated on ``plant`` (seed + 1000 k) to ``path``."""
+    scenario, seed = golden_scenario(name)
+    write_run(path, simulate_run(scenario, seed=seed + 1000 * k, wheel_speeds=False,
+                                 plant=plant))
+    return path
+
+
 def main() -> int:
     """Print (or ``--json``) the coverage table."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -51,23 +64,32 @@ def main() -> int:
     ap.add_argument("--no-golden", action="store_true", help="list simulated runs only")
     ap.add_argument("--time-constant", type=float, default=unc.DEFAULTS.time_constant,
                     help="rate filter time constant of the error model [s]")
+    ap.add_argument("--exclude", default="",
+                    help="golden runs left out of the table (those the --params were fitted on)")
+    ap.add_argument("--fit-on-plant", action="store_true",
+                    help="simulate the --fit runs on --plant (golden seeds) instead of the bags")
+    ap.add_argument("--write-fit-runs", metavar="DIR", default=None,
+                    help="write the --fit-on-plant runs as bags into DIR and exit")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     params = load_params(preset_path(args.params))
     fitted = args.fit.split(",")
+    skip = set(fitted) | set(filter(None, args.exclude.split(",")))
     base = replace(unc.DEFAULTS, time_constant=args.time_constant)
-    model = fit_error_model_on_bags([GOLDEN / name for name in fitted], params, base)
     rows = []
     runs = [] if args.no_golden else [(name, GOLDEN / name) for name in GOLDEN_RUNS
-                                      if name not in fitted]
+                                      if name not in skip]
     with tempfile.TemporaryDirectory() as tmp:
+        fit_bags = [GOLDEN / name for name in fitted]
+        if args.fit_on_plant or args.write_fit_runs:
+            out = Path(args.write_fit_runs or tmp)
+            fit_bags = [_simulate(name, 0, args.plant, out / name) for name in fitted]
+            if args.write_fit_runs:
+                return 0
+        model = fit_error_model_on_bags(fit_bags, params, base)
         for k in range(1, args.sim_seeds + 1):
             for name in GOLDEN_RUNS:
-                scenario, seed = golden_scenario(name)
-                run = simulate_run(scenario, seed=seed + 1000 * k, wheel_speeds=False,
-                                   plant=args.plant)
-                path = Path(tmp) / f"{name}_seed{seed + 1000 * k}"
-                write_run(path, run)
+                path = _simulate(name, k, args.plant, Path(tmp) / f"{name}_sim{k}")
                 runs.append((path.name, path))
         for name, bag in runs:
             t, mod, meas, slip, p = _series(bag, params)
