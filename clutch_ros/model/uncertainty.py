@@ -20,11 +20,11 @@ std over the samples where the model says the clutch carries nothing (``|modelle
 ``QUIET_FRACTION`` of the run's largest: a residual there is the sensor's noise, whatever the
 model). ``base`` [N m], ``rel`` [1], ``rate_time`` [s] and ``stick_rel`` [1] are then the
 Gaussian maximum-likelihood fit of the residuals (``sum(log sigma + r^2 / (2 sigma^2))``,
-minimised over the logarithms of the four, so each stays >= 0; a term whose feature the run
-lacks goes to 0) with ``noise`` fixed. Last, one quantile calibration scales the four model
-terms (not the sensor's noise) so that 95 % of the fitting run's ``|residual| / sigma`` are
-below 1.96. The parameters live in the parameter file under ``uncertainty.*``
-(:data:`DEFAULTS` when absent).
+minimised over the logarithms of the four, so each stays >= 0, from several starts: it has
+local minima; a term whose feature the run lacks goes to 0) with ``noise`` fixed. Last,
+one quantile calibration scales the four model terms (not the sensor's noise) so that 95 %
+of the fitting run's ``|residual| / sigma`` are below 1.96. The parameters live in the
+parameter file under ``uncertainty.*`` (:data:`DEFAULTS` when absent).
 
 Phases (for :func:`coverage`): a sample is *transient* within ``TRANSIENT_WINDOW`` [s] after
 the actuating pressure moved faster than ``TRANSIENT_RATE`` of its run's range per second
@@ -271,9 +271,17 @@ def _max_likelihood(design: np.ndarray, resid: np.ndarray, noise: float) -> np.n
         return (float(np.sum(0.5 * np.log(var) + 0.5 * r2 / var)),
                 2.0 * c2 * ((x ** 2).T @ g))
 
-    start = np.full(x.shape[1], 0.5 * math.log(float(np.mean(r2)) / x.shape[1] + 1e-300))
-    best = minimize(nll, start, jac=True, method="L-BFGS-B",
-                    bounds=[(start[0] - 40.0, start[0] + 20.0)] * x.shape[1])
+    level = 0.5 * math.log(float(np.mean(r2)) / x.shape[1] + 1e-300)
+    bounds = [(level - 40.0, level + 20.0)] * x.shape[1]
+    # several starts (the likelihood has local minima where one term takes everything):
+    # equal shares, then each term carrying nearly all the variance; the lowest wins
+    starts = [np.full(x.shape[1], level)]
+    for j in range(x.shape[1]):
+        start = np.full(x.shape[1], level - 3.0)
+        start[j] = level + 0.5 * math.log(x.shape[1])
+        starts.append(start)
+    fits = [minimize(nll, s0, jac=True, method="L-BFGS-B", bounds=bounds) for s0 in starts]
+    best = min(fits, key=lambda f: float(f.fun))
     coef = np.zeros(design.shape[1])
     coef[used] = np.exp(best.x) / scale[used]
     return coef

@@ -85,3 +85,19 @@ def test_adaptation_takes_out_error_the_fixed_model_keeps(fitted):
     assert summary["rmse_nm"] < 0.9 * fixed.summary["rmse_nm"], (summary, fixed.summary)
     finite = np.isfinite(modelled)
     assert finite.sum() > 0.9 * finite.size
+
+
+def test_the_fit_finds_the_likelihood_minimum_where_one_term_traps_a_single_start(fitted):
+    """A 30 rpm step run added: from one start, the rate term took everything.
+
+    From equal shares alone the fit ended at rel 0, rate_time 0.56 s; it starts from several
+    points and keeps the lowest.
+    """
+    params, _ = fitted
+    parts = []
+    for name in (*FIT, "table3_seq1_30rpm"):
+        t, modelled, measured, batch, _ = _adaptive(name, params)
+        parts.append((t, modelled, measured, batch.slip_speed_filtered))
+    model = fit_error_model_on_series(parts)
+    assert 0.005 < model.rel < 0.05, model
+    assert model.rate_time < 0.2, model
