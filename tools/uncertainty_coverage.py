@@ -2,12 +2,22 @@
 
     .venv/bin/python tools/uncertainty_coverage.py [--fit table3_seq2_10rpm[,run...]]
         [--sim-seeds 2] [--plant rig_truth_elastic] [--params flexiforce_8] [--no-golden]
+        [--exclude run,...] [--fit-on-plant] [--write-fit-runs DIR] [--adapt [--adapt-gain]]
 
 Runs: the golden bags (tests/data/golden/bags) and, with ``--sim-seeds N``, N fresh runs of
 the simulated rig (truth plant ``--plant``, default the golden bags' ``rig_truth_elastic``)
-per golden scenario with other noise seeds (seed + 1000 * k). The error model is fitted on
+per golden scenario with other noise seeds (seed + 1000 * k), except the fitted and
+``--exclude`` scenarios (their error repeats across seeds: not unseen). The error model is fitted on
 the ``--fit`` golden run(s) only (comma-separated, joined as ``fit_error_model_on_bags``
-does); the table lists every other run (never a fitted one).
+does); the table lists every other golden run (never a fitted one, nor an ``--exclude`` one:
+the runs the ``--params`` were fitted on). ``--fit-on-plant``: the ``--fit`` runs are
+simulated on ``--plant`` with the golden seeds (k = 0; the listed runs have k >= 1), for a
+rig other than the golden bags'; ``--write-fit-runs DIR`` writes those runs as bags (to fit
+the estimator's parameters on them with ``clutch fit``) and exits. ``--adapt``: every run
+(fitting runs included) is replayed with the online adaptation, as the estimator node runs it
+by default when a torque sensor is there (``adapt.enabled``; a fresh estimator per run, default
+``adapt.*`` settings; ``--adapt-gain`` also adapts the spline gain, ``adapt.spline_gain``), so
+the error model is the one of the adapted estimate.
 """
 
 from __future__ import annotations
@@ -25,18 +35,42 @@ import numpy as np
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model import uncertainty as unc
+from clutch_ros.model.adaptation import AdaptationSettings
+from clutch_ros.offline.adapt import adaptive_replay
 from clutch_ros.offline.golden import PLANT
-from clutch_ros.offline.replay import fit_error_model_on_bags, replay_bag, stamps_s
+from clutch_ros.offline.replay import (
+    fit_error_model_on_bags,
+    fit_error_model_on_series,
+    replay_bag,
+    stamps_s,
+)
 from clutch_ros.offline.rig_runs import GOLDEN_RUNS, golden_scenario, simulate_run, write_run
 
 GOLDEN = Path(__file__).resolve().parents[1] / "tests" / "data" / "golden" / "bags"
 
 
-def _series(bag: Path, params):
-    result = replay_bag(bag, params, per_lamella=False, pipeline=False)
+def _series(bag: Path, params, adapt: AdaptationSettings | None = None):
+    """Return ``t, modelled, measured, slip, pressure`` of one replay (adaptive with ``adapt``)."""
+    if adapt is None:
+        result = replay_bag(bag, params, per_lamella=False, pipeline=False)
+    else:
+        result = adaptive_replay([bag], params, adapt)[0].result
     b = result.batch
     return (stamps_s(result.rig), b.modelled_torque, b.measured_torque,
             b.slip_speed_filtered, b.actuating_pressure)
+
+
+def _published(series):
+    """``(t, modelled, measured, slip)`` of a run (rejected rows: NaN torque) for a fit."""
+    return series[:4]
+
+
+def _simulate(name: str, k: int, plant: str, path: Path) -> Path:
+    """Write the golden scenario ``name`` simulated on ``plant`` (seed + 1000 k) to ``path``."""
+    scenario, seed = golden_scenario(name)
+    write_run(path, simulate_run(scenario, seed=seed + 1000 * k, wheel_speeds=False,
+                                 plant=plant))
+    return path
 
 
 def main() -> int:
@@ -51,26 +85,44 @@ def main() -> int:
     ap.add_argument("--no-golden", action="store_true", help="list simulated runs only")
     ap.add_argument("--time-constant", type=float, default=unc.DEFAULTS.time_constant,
                     help="rate filter time constant of the error model [s]")
+    ap.add_argument("--exclude", default="",
+                    help="golden runs left out of the table (those the --params were fitted on)")
+    ap.add_argument("--fit-on-plant", action="store_true",
+                    help="simulate the --fit runs on --plant (golden seeds) instead of the bags")
+    ap.add_argument("--write-fit-runs", metavar="DIR", default=None,
+                    help="write the --fit-on-plant runs as bags into DIR and exit")
+    ap.add_argument("--adapt", action="store_true",
+                    help="replay every run with the online adaptation (the node's default)")
+    ap.add_argument("--adapt-gain", action="store_true",
+                    help="with --adapt: also adapt the spline gain (adapt.spline_gain)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     params = load_params(preset_path(args.params))
     fitted = args.fit.split(",")
+    skip = set(fitted) | set(filter(None, args.exclude.split(",")))
     base = replace(unc.DEFAULTS, time_constant=args.time_constant)
-    model = fit_error_model_on_bags([GOLDEN / name for name in fitted], params, base)
+    adapt = AdaptationSettings(spline_gain=args.adapt_gain) if args.adapt else None
     rows = []
     runs = [] if args.no_golden else [(name, GOLDEN / name) for name in GOLDEN_RUNS
-                                      if name not in fitted]
+                                      if name not in skip]
     with tempfile.TemporaryDirectory() as tmp:
+        fit_bags = [GOLDEN / name for name in fitted]
+        if args.fit_on_plant or args.write_fit_runs:
+            out = Path(args.write_fit_runs or tmp)
+            fit_bags = [_simulate(name, 0, args.plant, out / name) for name in fitted]
+            if args.write_fit_runs:
+                return 0
+        if adapt is None:
+            model = fit_error_model_on_bags(fit_bags, params, base)
+        else:
+            model = fit_error_model_on_series([_published(_series(bag, params, adapt))
+                                               for bag in fit_bags], base)
         for k in range(1, args.sim_seeds + 1):
-            for name in GOLDEN_RUNS:
-                scenario, seed = golden_scenario(name)
-                run = simulate_run(scenario, seed=seed + 1000 * k, wheel_speeds=False,
-                                   plant=args.plant)
-                path = Path(tmp) / f"{name}_seed{seed + 1000 * k}"
-                write_run(path, run)
+            for name in (n for n in GOLDEN_RUNS if n not in skip):  # a fitted scenario: seen
+                path = _simulate(name, k, args.plant, Path(tmp) / f"{name}_sim{k}")
                 runs.append((path.name, path))
         for name, bag in runs:
-            t, mod, meas, slip, p = _series(bag, params)
+            t, mod, meas, slip, p = _series(bag, params, adapt)
             std = unc.torque_std(model, t, mod, slip)
             cov = unc.coverage(meas, mod, std, unc.phases(t, p, slip))
             rows.append({"run": name, **cov})

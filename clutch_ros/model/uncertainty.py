@@ -9,14 +9,21 @@ the replay with the same loop, :func:`torque_std`):
   backward difference of the modelled torque; a gap above ``max_gap`` restarts it at 0);
 * ``S`` = 1 while the clutch sticks (``|slip_speed_filtered| < stick_speed``), else 0.
 
-    sigma = base + rel * T + rate_time * R + stick_rel * S * T
+The independent parts add in quadrature (variances add; a sum of standard deviations would
+count the sensor's noise again in every term)::
 
-:func:`fit_error_model` identifies ``base`` [N m], ``rel`` [1], ``rate_time`` [s] and
-``stick_rel`` [1] on a fitting run: a non-negative least-squares fit of the absolute
-residuals (``|measured - modelled| * sqrt(pi / 2)``, whose mean is sigma for a normal error)
-on the four features, reweighted by ``1 / sigma`` (so each sample's relative misfit counts
-alike, not only the largest errors), then one quantile calibration of the whole so that
-95 % of the fitting run's ``|residual| / sigma`` are below 1.96. The parameters live in the
+    sigma = sqrt(noise^2 + base^2 + (rel * T)^2 + (rate_time * R)^2 + (stick_rel * S * T)^2)
+
+:func:`fit_error_model` identifies them on a fitting run in two steps. ``noise`` [N m], the
+torque sensor's own noise, comes first and apart from the model terms: the residual's robust
+std over the samples where the model says the clutch carries nothing (``|modelled|`` at most
+``QUIET_FRACTION`` of the run's largest: a residual there is the sensor's noise, whatever the
+model). ``base`` [N m], ``rel`` [1], ``rate_time`` [s] and ``stick_rel`` [1] are then the
+Gaussian maximum-likelihood fit of the residuals (``sum(log sigma + r^2 / (2 sigma^2))``,
+minimised over the logarithms of the four, so each stays >= 0, from several starts: it has
+local minima; a term whose feature the run lacks goes to 0) with ``noise`` fixed. Last,
+one quantile calibration scales the four model terms (not the sensor's noise) so that 95 %
+of the fitting run's ``|residual| / sigma`` are below 1.96. The parameters live in the
 parameter file under ``uncertainty.*`` (:data:`DEFAULTS` when absent).
 
 Phases (for :func:`coverage`): a sample is *transient* within ``TRANSIENT_WINDOW`` [s] after
@@ -39,6 +46,7 @@ from clutch_ros.model.errors import ModelError
 
 __all__ = [
     "DEFAULTS",
+    "QUIET_FRACTION",
     "ErrorModel",
     "TRANSIENT_RATE",
     "TRANSIENT_WINDOW",
@@ -49,6 +57,7 @@ __all__ = [
     "features",
     "fit_error_model",
     "phases",
+    "sensor_noise",
     "torque_std",
 ]
 
@@ -64,6 +73,10 @@ TRANSIENT_WINDOW = 1.0
 SLIP_DEADBAND = 0.3
 #: Parameter file namespace of the error model.
 NAMESPACE = "uncertainty"
+#: Median of a chi-squared variable of one degree of freedom.
+CHI2_1_MEDIAN = 0.454936423119572
+#: Sensor-noise samples: ``|modelled|`` at most this fraction of the run's largest [1].
+QUIET_FRACTION = 0.01
 
 
 @dataclass(frozen=True)
@@ -71,7 +84,8 @@ class ErrorModel:
     """Parameters of the torque error model (module docstring), SI units.
 
     Attributes:
-        base: constant part [N m], >= 0.
+        noise: the torque sensor's noise, 1 sigma [N m], >= 0.
+        base: constant part of the model's error [N m], >= 0.
         rel: part proportional to ``|modelled_torque|`` [1], >= 0.
         rate_time: part proportional to the filtered ``|dT/dt|`` [s], >= 0.
         stick_rel: extra part proportional to the torque while the clutch sticks [1], >= 0.
@@ -81,6 +95,7 @@ class ErrorModel:
 
     """
 
+    noise: float = 0.0
     base: float = 5.0
     rel: float = 0.1
     rate_time: float = 0.05
@@ -170,8 +185,8 @@ class _RateFilter:
 
 
 def _sigma(model: ErrorModel, torque: float, rate: float, stick: float) -> float:
-    return (model.base + model.rel * torque + model.rate_time * rate
-            + model.stick_rel * stick * torque)
+    return math.sqrt(model.noise ** 2 + model.base ** 2 + (model.rel * torque) ** 2
+                     + (model.rate_time * rate) ** 2 + (model.stick_rel * stick * torque) ** 2)
 
 
 class TorqueStd:
@@ -212,24 +227,80 @@ def fit_error_model(t: np.ndarray, modelled: np.ndarray, measured: np.ndarray,
     ok = np.isfinite(resid) & np.all(np.isfinite(x), axis=1)
     if ok.sum() < 20:
         raise ModelError(f"the error model needs at least 20 measured samples, got {ok.sum()}")
-    x, target = x[ok], np.abs(resid[ok]) * math.sqrt(math.pi / 2.0)
+    x, resid = x[ok], resid[ok]
+    noise = sensor_noise(x[:, 0], resid)
+    # columns: the model terms' features (base, rel, rate_time, stick_rel)
     design = np.column_stack([np.ones(len(x)), x[:, 0], x[:, 1], x[:, 2] * x[:, 0]])
-    scale = np.maximum(np.sqrt(np.mean(design ** 2, axis=0)), 1e-300)
-    floor = 1e-3 * float(np.mean(target)) + 1e-12  # never a zero-width band
-    weight = np.ones(len(x))
-    from scipy.optimize import nnls  # loaded by fits only: `clutch replay` starts without it
+    coef = _max_likelihood(design, resid, noise)
+    terms = (design * coef) ** 2 @ np.ones(4)
+    ratio = np.abs(resid) / Z95
+    k = _calibration(ratio, noise ** 2, terms)
+    coef = coef * k
+    return replace(base, noise=noise, base=float(coef[0]), rel=float(coef[1]),
+                   rate_time=float(coef[2]), stick_rel=float(coef[3]))
 
-    for _ in range(4):
-        coef, _ = nnls(design / scale * weight[:, None], target * weight)
-        coef = coef / scale
-        coef[0] = max(coef[0], floor)
-        weight = 1.0 / (design @ coef)
-    model = replace(base, base=float(coef[0]), rel=float(coef[1]),
-                    rate_time=float(coef[2]), stick_rel=float(coef[3]))
-    sigma = torque_std(model, t, modelled, slip)[ok]
-    k = float(np.quantile(np.abs(resid[ok]) / sigma, 0.95)) / Z95
-    return replace(model, base=model.base * k, rel=model.rel * k,
-                   rate_time=model.rate_time * k, stick_rel=model.stick_rel * k)
+
+def sensor_noise(torque: np.ndarray, resid: np.ndarray) -> float:
+    """Return the residual's std [N m] where ``torque`` (``|modelled|``) is quiet (docstring).
+
+    Robust: from the median of the squared residuals (``/ 0.4549``, the median of a
+    chi-squared variable of one degree of freedom), so the few zero crossings of a reversal
+    among the quiet samples do not count as noise. 0 when fewer than 20 samples are quiet
+    (the constant ``base`` then carries the floor).
+    """
+    quiet = torque <= QUIET_FRACTION * float(np.max(torque))
+    if quiet.sum() < 20:
+        return 0.0
+    return float(np.sqrt(np.median(resid[quiet] ** 2) / CHI2_1_MEDIAN))
+
+
+def _max_likelihood(design: np.ndarray, resid: np.ndarray, noise: float) -> np.ndarray:
+    """Return the >= 0 coefficients maximising the Gaussian likelihood of ``resid``."""
+    from scipy.optimize import minimize  # loaded by fits only: `clutch replay` starts without
+
+    scale = np.sqrt(np.mean(design ** 2, axis=0))
+    used = scale > 0.0  # a feature the run lacks (no stick, no rate) keeps its term at 0
+    x = design[:, used] / scale[used]
+    r2 = resid ** 2
+    floor = noise ** 2 + 1e-12 * float(np.mean(r2)) + 1e-300
+
+    def nll(log_c: np.ndarray) -> tuple[float, np.ndarray]:
+        c2 = np.exp(2.0 * log_c)
+        var = floor + (x ** 2) @ c2
+        g = 0.5 / var - 0.5 * r2 / var ** 2  # d nll / d var per sample
+        return (float(np.sum(0.5 * np.log(var) + 0.5 * r2 / var)),
+                2.0 * c2 * ((x ** 2).T @ g))
+
+    level = 0.5 * math.log(float(np.mean(r2)) / x.shape[1] + 1e-300)
+    bounds = [(level - 40.0, level + 20.0)] * x.shape[1]
+    # several starts (the likelihood has local minima where one term takes everything):
+    # equal shares, then each term carrying nearly all the variance; the lowest wins
+    starts = [np.full(x.shape[1], level)]
+    for j in range(x.shape[1]):
+        start = np.full(x.shape[1], level - 3.0)
+        start[j] = level + 0.5 * math.log(x.shape[1])
+        starts.append(start)
+    fits = [minimize(nll, s0, jac=True, method="L-BFGS-B", bounds=bounds) for s0 in starts]
+    best = min(fits, key=lambda f: float(f.fun))
+    coef = np.zeros(design.shape[1])
+    coef[used] = np.exp(best.x) / scale[used]
+    return coef
+
+
+def _calibration(ratio: np.ndarray, noise2: float, terms: np.ndarray) -> float:
+    """Return ``k``: 95 % of ``ratio`` (``|r| / 1.96``) below ``sqrt(noise2 + k^2 terms)``."""
+    def inside(k: float) -> float:
+        return float(np.mean(ratio ** 2 <= noise2 + k * k * terms))
+
+    if inside(0.0) >= 0.95 or not np.any(terms > 0.0):
+        return 0.0 if np.any(terms > 0.0) else 1.0
+    low, high = 0.0, 1.0
+    while inside(high) < 0.95:
+        low, high = high, 2.0 * high
+    for _ in range(60):  # bisection to ~1e-18 relative: deterministic
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if inside(mid) < 0.95 else (low, mid)
+    return high
 
 
 def phases(t: np.ndarray, pressure: np.ndarray, slip: np.ndarray) -> np.ndarray:

@@ -14,7 +14,10 @@ __all__ = ["UNCERTAINTY_PARAMS", "error_model"]
 
 _D = DEFAULTS
 UNCERTAINTY_PARAMS = [
-    ParamSpec("uncertainty.base", _D.base, "constant part of modelled_torque_std", "N m",
+    ParamSpec("uncertainty.noise", _D.noise, "torque sensor noise (1 sigma), in quadrature "
+              "with the model terms of modelled_torque_std", "N m", 0.0, 1e6, read_only=True),
+    ParamSpec("uncertainty.base", _D.base, "constant part of the model error in "
+              "modelled_torque_std (the terms add in quadrature)", "N m",
               0.0, 1e6, read_only=True),
     ParamSpec("uncertainty.rel", _D.rel, "part of modelled_torque_std proportional to "
               "|modelled torque|", "1", 0.0, 100.0, read_only=True),

@@ -57,6 +57,7 @@ __all__ = [
     "ReplayResult",
     "estimate_layout",
     "fit_error_model_on_bags",
+    "fit_error_model_on_series",
     "published_rows",
     "replay_bag",
     "stamps_s",
@@ -344,6 +345,17 @@ def fit_error_model_on_bags(bags: Any, params: Any, base: ErrorModel = DEFAULTS)
         rows = published_rows(b)
         parts.append((stamps_s(result.rig), np.where(rows, b.modelled_torque, np.nan),
                       b.measured_torque, b.slip_speed_filtered))
+    return fit_error_model_on_series(parts, base)
+
+
+def fit_error_model_on_series(parts: Any, base: ErrorModel = DEFAULTS) -> ErrorModel:
+    """Identify the torque error model on runs given as ``(t, modelled, measured, slip)``.
+
+    Each part is one run's arrays (``t`` [s], torques [N m], ``slip_speed_filtered``
+    [rad/s]; unpublished rows NaN in ``modelled``), e.g. of an adaptive replay; joined as
+    :func:`fit_error_model_on_bags` joins its bags.
+    """
+    parts = list(parts)
     t, modelled, measured, slip = (np.concatenate(c) for c in zip(*parts))
     if len(parts) > 1:  # a later bag may start after the last: force the restart
         starts = np.cumsum([len(p[0]) for p in parts])[:-1]

@@ -118,3 +118,32 @@ def test_parameters_round_trip_and_bad_values_are_refused():
         ErrorModel(time_constant=0.0)
     with pytest.raises(ModelError, match="at least 20 measured samples"):
         fit_error_model(np.arange(5.0), np.ones(5), np.ones(5), np.ones(5))
+
+
+def test_the_terms_add_in_quadrature():
+    model = ErrorModel(noise=3.0, base=0.0, rel=0.01, rate_time=0.0, stick_rel=0.0)
+    std = torque_std(model, np.array([0.0, 0.01]), np.array([400.0, 400.0]), np.ones(2))
+    assert std[1] == pytest.approx(5.0)  # sqrt(3^2 + (0.01 * 400)^2), not 3 + 4
+
+
+def test_the_sensor_noise_is_identified_apart_from_the_model_terms():
+    """Where the model carries nothing the residual is the sensor's noise alone.
+
+    Truth: sensor noise 2 N m everywhere plus a model error of 3 % of the torque. The fitted
+    ``noise`` is the sensor's, and the band holds 95 % of the quiet samples of other runs.
+    """
+    def run(seed):
+        t, p, modelled, _, slip = _run(seed)
+        rng = np.random.default_rng(seed + 100)
+        measured = (modelled + rng.normal(0.0, 2.0, t.size)
+                    + rng.normal(0.0, 1.0, t.size) * 0.03 * np.abs(modelled))
+        return t, modelled, measured, slip
+
+    model = fit_error_model(*run(7))
+    assert model.noise == pytest.approx(2.0, rel=0.1)
+    assert model.rel == pytest.approx(0.03, rel=0.2)
+    t, modelled, measured, slip = run(8)
+    std = torque_std(model, t, modelled, slip)
+    quiet = np.abs(modelled) <= 0.01 * np.max(np.abs(modelled))
+    inside = np.abs(measured - modelled)[quiet] <= Z95 * std[quiet]
+    assert quiet.sum() > 500 and 0.93 <= inside.mean() <= 0.97
