@@ -28,8 +28,9 @@ seconds summed over the replay process and its workers (``--jobs N`` against the
 results; all counted as serial, an upper bound) plus the busiest worker's CPU. On an idle
 N-core machine the ``--jobs N`` wall time is about the critical path, so
 ``critical path / one-core CPU`` predicts the wall ratio. Each worker's CPU is sampled from
-``/proc/PID/stat`` every few milliseconds while it runs (Linux; the last few milliseconds of
-a worker are missed and counted as the parent's, which makes the critical path longer).
+``/proc/PID/stat`` every few milliseconds while it runs (Linux; only the replay's children,
+found through ``/proc/PID/task/TID/children``; the last few milliseconds of a worker are
+missed and counted as the parent's, which makes the critical path longer).
 """
 
 from __future__ import annotations
@@ -91,6 +92,31 @@ def _proc_cpu(pid: int) -> tuple[int, float] | None:
     return int(fields[1]), (int(fields[11]) + int(fields[12])) / tick
 
 
+def _children(pid: int) -> list[int]:
+    """Return the child processes of ``pid``: its threads' ``children`` lists in /proc.
+
+    Reading only those (not every process's stat) keeps the poll cheap: a scan of all of
+    /proc every few milliseconds takes CPU from the replay it measures on a busy machine.
+    Falls back to the scan where the kernel has no ``children`` files.
+    """
+    try:
+        threads = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return []
+    found: list[int] = []
+    for tid in threads:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/children") as f:
+                found.extend(int(c) for c in f.read().split())
+        except FileNotFoundError:  # no CONFIG_PROC_CHILDREN, or the thread ended
+            if not os.path.exists(f"/proc/{pid}/task/{tid}"):
+                continue
+            return [int(n) for n in os.listdir("/proc") if n.isdigit()]
+        except OSError:
+            continue
+    return found
+
+
 def run_polled(args: list[str], timeout: float = 1800.0) -> tuple[ProcessRun, list[float]]:
     """Run ``python ARGS`` like :func:`run_process`; also return each child's CPU [s].
 
@@ -109,10 +135,9 @@ def run_polled(args: list[str], timeout: float = 1800.0) -> tuple[ProcessRun, li
                 proc.kill()
                 proc.wait()
                 raise RuntimeError(f"{' '.join(args)} timed out after {timeout} s")
-            for name in os.listdir("/proc"):
-                if name.isdigit() and (found := _proc_cpu(int(name))) is not None:
-                    if found[0] == proc.pid:
-                        workers[int(name)] = found[1]
+            for pid in _children(proc.pid):
+                if (found := _proc_cpu(pid)) is not None and found[0] == proc.pid:
+                    workers[pid] = found[1]
             time.sleep(_POLL_S)
         wall = time.perf_counter() - start
         out.seek(0)

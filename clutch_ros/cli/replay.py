@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from clutch_ros.bag.recover import recover_bag
+from clutch_ros.bag.typestore import clutch_typestore
 from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
 from clutch_ros.cli.dispatch import add_batch_options, check_batch_options, emit_json
 from clutch_ros.cli.replay_adapt import AdaptiveRun, add_adapt_options, print_adaptation
@@ -141,9 +142,12 @@ def run(args) -> int:
     elif serial:
         done = (job(item) for item in items)
     else:
-        if not args.cluster:  # load the compiled loop once, before the workers fork
-            warm_up(params)
-        done = iter(run_jobs(job, items, jobs=args.jobs, cluster=args.cluster))
+        if not args.cluster:  # load the compiled loop and the typestore once, before the
+            warm_up(params)   # workers fork (each would build its own on its first bag)
+            clutch_typestore()
+        # largest bags first: a big bag started last would run alone at the end
+        done = iter(run_jobs(job, items, jobs=args.jobs, cluster=args.cluster,
+                             costs=[_bag_bytes(source) for source, _ in items]))
     for (bag, recovery, spent), (summary, result) in zip(recoveries, done):
         if recovery is not None:
             seconds = summary["seconds"] + spent
@@ -209,6 +213,16 @@ def _say_recovery(rep: dict) -> None:
     if rep["missing"]:
         sys.stderr.write(f"clutch replay: {rep['bag']}: recovered {rep['recovered']}, missing "
                          f"{rep['missing']} of the declared counts\n")
+
+
+def _bag_bytes(bag: Path) -> int:
+    """Return the size of ``bag`` (a file, or a directory's files) [bytes]; 0 if unreadable."""
+    try:
+        if bag.is_dir():
+            return sum(f.stat().st_size for f in bag.iterdir() if f.is_file())
+        return bag.stat().st_size
+    except OSError:  # the job itself reports a missing or unreadable bag
+        return 0
 
 
 def _outputs(bags, output):
