@@ -14,6 +14,14 @@ on the PC cannot starve the live chain; where the OS refuses (not root, no rtpri
 run goes on at the normal policy and the summary says so (``realtime``). ``--no-realtime``
 asks for nothing.
 
+``--lockstep``: the simulated rig does not keep real time; it publishes ``/clock``, every node
+of the chain (and this process's driver and recorder) runs with ``use_sim_time``, and the
+rig waits for the chain to answer every 10 ms tick before it steps on
+(:mod:`clutch_ros.nodes.lockstep`). The run then takes as long as the chain needs, and its
+figures are the same on an idle and on a busy machine: the tests assert the targets on it.
+It asks for no real-time scheduling (it needs none). The summary adds ``lockstep_timeouts``
+(waits for the chain that expired; 0 in a good run) and ``wall_time_s``.
+
 The rig's truth plant (``rig_truth`` preset, ``coulomb`` spline law) differs on purpose from
 the estimator's preset, so the demo never compares a model with itself.
 
@@ -38,11 +46,13 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.logging import LoggingSeverity
 
+from clutch_ros.bag.reader import BagReader
 from clutch_ros.cli.dispatch import emit_json
 from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
+from clutch_ros.interfaces import DIAGNOSTICS
 from clutch_ros.model import reference_torque
 from clutch_ros.model.control import ControllerSettings
 from clutch_ros.nodes.demo_driver import DemoDriver
@@ -60,6 +70,9 @@ __all__ = ["PUMP_RISE", "add_parser", "run"]
 #: on a clean staircase, 1.78 bar with 0-15 ms of arrival jitter; 75 bar/s: none, 0.68 bar).
 #: The figures of both rates: benchmarks/RESULTS.md.
 PUMP_RISE = 75e5
+
+#: ``bridge.rate`` [Hz] in lock-step: a cap above the rig's one trigger frame per 10 ms tick.
+LOCKSTEP_BRIDGE_RATE = 200.0
 
 #: SCHED_FIFO priorities of the run's processes (1..99, higher preempts lower): the world
 #: first, then the bridge (CAN frames queue in its socket), then the model and the driver.
@@ -95,6 +108,11 @@ def add_parser(sub) -> None:
                    help="run every process at the normal time-sharing policy (default: "
                         "SCHED_FIFO where the OS allows it, so other work cannot starve the "
                         "live chain)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="the rig publishes /clock and waits for the chain (use_sim_time) every "
+                        "10 ms tick instead of keeping real time: the same figures however "
+                        "busy the machine is (implies --no-realtime; rig_state at 100 Hz, "
+                        "--rate does not apply)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.set_defaults(func=run)
 
@@ -141,14 +159,26 @@ def run(args) -> int:
              "controller.rise_rate_limit": PUMP_RISE,
              "controller.trim_rate": 0.0 if args.no_adapt else ControllerSettings.trim_rate})],
     }
+    if args.lockstep:
+        args.no_realtime = True  # lock-step needs no priority: the rig waits for the chain
+        specs["rig_sim"] += ros_param_args({"rig.lockstep": True})
+        # one RigSpeed per 10 ms tick: rig_state at 100 Hz. The cap sits above it, since on
+        # stamps exactly 10 ms apart a 100 Hz token bucket refuses now and then by rounding
+        # (the frame then waits for the bridge's flush timer, i.e. for the next /clock)
+        specs["can_bridge"] += ros_param_args({"bridge.rate": LOCKSTEP_BRIDGE_RATE})
+        for name in specs:
+            if name != "rig_sim":
+                specs[name] += ros_param_args({"use_sim_time": True})
     if not args.no_realtime:
         for name in specs:
             specs[name] += ros_param_args({"rt.policy": "fifo", "rt.priority": RT_PRIORITY[name]})
     if args.dashboard:
-        specs["dashboard"] = ros_param_args({"dashboard.port": args.dashboard_port})
+        specs["dashboard"] = ros_param_args({"dashboard.port": args.dashboard_port,
+                                             "use_sim_time": bool(args.lockstep)})
         _say(f"clutch demo: dashboard at ws://127.0.0.1:{args.dashboard_port} (Foxglove: open "
              "connection -> Foxglove WebSocket; layout params/clutch_dashboard.json)")
     procs = []
+    wall_start = time.monotonic()
     try:
         for name, node_args in specs.items():
             # The simulated rig stands in for hardware that keeps real time whatever the PC
@@ -168,9 +198,16 @@ def run(args) -> int:
                     **{proc.name: policy_of(proc.pid) for proc in procs}}
     finally:
         time_sharing()  # the summary and plots need no priority
-        for proc in reversed(procs):
+        # lock-step: the rig (the clock) first, so the others' time stands still as they stop
+        first = [p for p in procs if p.name == "rig_sim"] if args.lockstep else []
+        for proc in first + [p for p in reversed(procs) if p not in first]:
             proc.stop()
+    wall_time = time.monotonic() - wall_start
     summary = _summarise(out, profile, driver, written, rated, args)
+    summary["lockstep"] = bool(args.lockstep)
+    summary["wall_time_s"] = wall_time
+    if args.lockstep:
+        summary["lockstep_timeouts"] = rig_diagnostic(out / "bag", "lockstep_timeouts")
     # True when every process of the chain ran at SCHED_FIFO (policy per process alongside)
     summary["realtime"] = all(policies.get(name) == "fifo" for name in RT_PRIORITY)
     summary["scheduling"] = policies
@@ -195,9 +232,11 @@ def _drive(profile, procs, out: Path, args):
     rclpy.init(args=[])
     executor = SingleThreadedExecutor()
     driver = DemoDriver(profile)
+    sim_time = rclpy.parameter.Parameter("use_sim_time", value=bool(args.lockstep))
+    driver.set_parameters([sim_time])  # lock-step: profile time is the rig's /clock
     recorder = RecorderNode(parameter_overrides=[
         rclpy.parameter.Parameter("recorder.output", value=str(out / "bag")),
-        rclpy.parameter.Parameter("recorder.storage", value=args.storage)])
+        rclpy.parameter.Parameter("recorder.storage", value=args.storage), sim_time])
 
     recorder.get_logger().set_level(LoggingSeverity.WARN)  # the summary says where the bag is
     executor.add_node(driver)
@@ -219,9 +258,12 @@ def _drive(profile, procs, out: Path, args):
             if driver.elapsed() >= next_line:
                 _say(driver.progress_line(), end="\r" if sys.stderr.isatty() else "\n")
                 next_line += 1.0
-        end = time.monotonic() + 1.0  # requests at 0 for a second: the pump releases
-        while time.monotonic() < end:
+        # requests at 0 for a second (of the driver's clock: the rig's in lock-step), so the
+        # pump releases; a wall-clock bound in case a lock-step rig stopped answering
+        end, wall_end = driver.elapsed() + 1.0, time.monotonic() + 30.0
+        while driver.elapsed() < end and time.monotonic() < wall_end:
             executor.spin_once(timeout_sec=0.01)
+            _check_alive(procs)
         _say("")
     finally:
         recorder.drain(executor, quiet=0.3, limit=3.0)  # what DDS still queues: into the bag
@@ -231,6 +273,20 @@ def _drive(profile, procs, out: Path, args):
         driver.destroy_node()
         rclpy.try_shutdown()
     return written, driver
+
+
+def rig_diagnostic(bag: Path, key: str, node: str = "/rig_sim") -> float:
+    """Return the last value of ``key`` in ``node``'s /diagnostics in ``bag`` (NaN: none)."""
+    value = math.nan
+    with BagReader(bag) as reader:
+        if DIAGNOSTICS.absolute not in reader.topics:
+            return value
+        for _, _, msg in reader.messages([DIAGNOSTICS.absolute]):
+            for status in msg.status:
+                for kv in status.values if status.name == node else ():
+                    if kv.key == key:
+                        value = float(kv.value)
+    return value
 
 
 def _check_alive(procs) -> None:
@@ -269,6 +325,9 @@ def _print_summary(s: dict) -> None:
             else "off (--no-adapt: feed-forward path)"),
         f"  bag: {s['bag']}",
     ]
+    if s["lockstep"]:
+        lines.insert(-1, f"  lock-step: {s['wall_time_s']:.0f} s of wall time, "
+                     f"{s['lockstep_timeouts']:.0f} waits for the chain expired")
     if s.get("rig_lost_time_s", 0.0) > 0.0:  # NaN (no report) compares False
         lines.insert(-1, f"  warning: the simulated rig fell behind real time and dropped "
                      f"{s['rig_lost_time_s']:.2f} s (the machine is short of CPU; the "

@@ -110,6 +110,8 @@ class CanBridgeNode(LifecycleNode):
         if reason is not None:
             raise ClutchError(reason)
         self._send_warn, self._lock, self._failure = LogThrottle(5.0), threading.Lock(), None
+        self._sim_time = False  # use_sim_time, read at configure
+        self._time_floor = 0.0  # [s] sim time: the newest command stamp (see _node_time)
         self._command = self._rig_pub = self._cmd_pub = self._raw_pub = self._notifier = None
         self._sub = self._pump_timer = self._flush_timer = None
         #: the bridge's components, counters and lifecycle state, read by its diagnostics
@@ -134,9 +136,12 @@ class CanBridgeNode(LifecycleNode):
             st.assembler = RigStateAssembler(db, signal_map=SignalMap(signal_specs(cfg)),
                                              socketcan_error_frames=cfg["can.interface"]
                                              == "socketcan")
-            st.gate = PumpCommandGate(time.monotonic, gate_config(cfg), st.assembler.map.pump,
-                                      stamp_clock=lambda: self.get_clock().now()
-                                      .nanoseconds * 1e-9)
+            # use_sim_time (a lock-step rig's /clock): the node clock is the time base of
+            # the frames, the gate's watchdog and rate limit, and the pacer, not the PC's
+            self._sim_time = bool(self.get_parameter("use_sim_time").value)
+            st.gate = PumpCommandGate(self._node_time if self._sim_time else time.monotonic,
+                                      gate_config(cfg), st.assembler.map.pump,
+                                      stamp_clock=self._node_time)
             st.pacer = PublishPacer(cfg["bridge.rate"], self._trigger(
                 cfg["bridge.publish_on"]), frozenset(st.assembler.map.writes))
             if cfg["input.log_file"]:
@@ -238,6 +243,16 @@ class CanBridgeNode(LifecycleNode):
         self._halt("shutdown")
         self._close_bus()
 
+    def _node_time(self) -> float:
+        """Return the node clock [s] (ROS time: /clock with use_sim_time).
+
+        With use_sim_time, never earlier than the newest admitted command's stamp: a command
+        stamped T proves that /clock reached T, even when it got here before that /clock
+        did (a lock-step rig then sends frames of T, which must be stamped T).
+        """
+        now = self.get_clock().now().nanoseconds * 1e-9
+        return max(now, self._time_floor) if self._sim_time else now
+
     # -- parameters -----------------------------------------------------------------------
     def _check_params(self, params) -> SetParametersResult:
         values = dict(self._cfg)
@@ -306,6 +321,8 @@ class CanBridgeNode(LifecycleNode):
         # the Notifier starts after configure made them, and stops before cleanup
         assert assembler is not None and gate is not None and pacer is not None
         try:
+            if self._sim_time:  # received at the node's (simulated) time, not the PC's
+                frame.timestamp = self._node_time()
             key = assembler.feed(frame)
             if not st.active:
                 return
@@ -353,18 +370,18 @@ class CanBridgeNode(LifecycleNode):
         assert assembler is not None and pacer is not None  # configured
         with self._lock:
             newest = assembler.newest_time
-            now = newest if bus_time and newest is not None else \
-                time.time() - (st.offset or 0.0)
+            wall = self._node_time() if self._sim_time else time.time()
+            now = newest if bus_time and newest is not None else wall - (st.offset or 0.0)
             if not decide(*args, now):
                 return
             if newest is not None and st.offset is None:  # relative clocks -> the epoch
-                skew = time.time() - newest
+                skew = wall - newest
                 st.offset = skew if abs(skew) > 3600.0 else 0.0
             if newest is None or not self._publish(assembler.snapshot()):
                 pacer.refund()
                 return
             # (st.offset was set above when it was None)
-            st.lag_max = max(st.lag_max, time.time() - (st.offset or 0.0) - newest)
+            st.lag_max = max(st.lag_max, wall - (st.offset or 0.0) - newest)
 
     def _publish(self, sample) -> bool:
         st = self.state
@@ -390,6 +407,8 @@ class CanBridgeNode(LifecycleNode):
             gate.refuse(kind, reason)
             return
         stamp = stamp_to_sec(msg.header.stamp)
+        if self._sim_time and stamp > self._time_floor:  # (see _node_time)
+            self._time_floor = stamp
         admitted = gate.commands
         out = gate.submit(msg.pressure, stamp if stamp > 0.0 else None)
         self._send(out, msg if gate.commands != admitted else None)

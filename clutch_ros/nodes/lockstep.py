@@ -1,0 +1,180 @@
+"""Lock-step for the simulated rig: it publishes ``/clock`` and waits for the chain to answer.
+
+With ``rig.lockstep`` the ``rig_sim`` node does not keep real time: it is the clock of the
+ROS graph, and every node of the chain runs with ``use_sim_time`` (``clutch demo
+--lockstep``). Every ``rig.lockstep_period`` (a sync tick ``T``, a whole number of plant
+steps; default 10 ms, the controller's, the bridge's rig_state and the PumpRequest period)
+:class:`LockStepSync` does, from the simulation thread:
+
+1. publish ``/clock`` = ``T`` (``rosgraph_msgs/Clock``; simulation time 0 is ``EPOCH_NS``, a
+   fixed, whole second, so the periods of the nodes' timers fall on sync ticks and every run
+   has the same stamps; small, so stamps that pass through float seconds on the way, as
+   python-can's frame timestamps, keep ~1e-11 s: at a wall-clock epoch they lost ~1e-7 s);
+2. wait until (a) a ``pressure_command`` stamped ``>= T`` arrived (the controller's tick at
+   ``T`` ran, on the estimate of the previous period, which step 4 saw delivered) and (b) a
+   valid PumpRequest frame arrived on the rig's CAN port after that (the bridge's pump timer
+   fired at ``T``, or it admitted the command stamped ``T``: either way its clock reads ``T``,
+   so it stamps the frames of step 3 with ``T``; a frame before the command can be a late
+   answer to the previous tick);
+3. send the frames due (between sync ticks the rig sends none: one frame of each kind per
+   period, and the bridge stamps each with its clock, which no other tick can advance);
+4. wait until a ``clutch_estimate`` stamped ``>= T`` arrived: the bridge read the frames and
+   published ``rig_state`` ``T``, the estimator answered it, and the controller, which
+   subscribes to the same estimate, has it before the next ``/clock``; meanwhile the bridge
+   has also sent the PumpRequest of the command of step 2, which the plant follows from the
+   next step on (frames that arrive during the waits count as received at ``T``).
+
+Why these answers: the PumpRequest frames carry no stamp and the bridge sends one only when
+its gate allows, so the rig keys on what is stamped with the tick (the controller's command,
+the estimate) and on the one frame the bridge sends every period whatever it is commanded.
+Each wait is bounded by ``rig.lockstep_timeout`` of wall time; an expired wait is counted
+(``lockstep_timeouts``, WARN on /diagnostics, with what was missing) and the run goes on.
+Until the chain has answered one sync tick completely (it is still starting), a wait gives up
+after ``STARTUP_WAIT`` without counting. ``/clock`` is published again (the same time: no
+jump) every ``REPUBLISH`` while waiting, for late subscribers and lost samples.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+from clutch_msgs.msg import ClutchEstimate, PressureCommand
+from rosgraph_msgs.msg import Clock
+
+from clutch_ros.interfaces import CLUTCH_ESTIMATE, PRESSURE_COMMAND
+from clutch_ros.nodes.qos import subscriber_qos
+
+__all__ = ["EPOCH_NS", "REPUBLISH", "STARTUP_WAIT", "LockStepSync"]
+
+EPOCH_NS = 100_000 * 1_000_000_000  # [ns] ROS time of simulation time 0 (1970-01-02)
+REPUBLISH = 0.02  # [s] wall: /clock is published again this often while waiting
+STARTUP_WAIT = 0.5  # [s] wall: a wait before the chain first answered gives up after this
+_POLL = 0.001  # [s] wall: CAN port poll interval while waiting
+
+
+def _ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+class LockStepSync:
+    """The rig's side of lock-step (see the module docstring); a ``LockStep`` of the simulator.
+
+    Args:
+        node: the rig node (publisher and subscriptions are made on it; its executor runs
+            the callbacks while the simulation thread waits)
+        dt: the plant step [s]
+        every: plant steps per sync tick
+        timeout: wall-clock bound of one wait [s]
+        poll: receives pending CAN frames; returns the valid PumpRequests among them
+        epoch_ns: ROS time of simulation time 0 [ns] (a whole number of ticks)
+
+    """
+
+    def __init__(self, node, dt: float, every: int, timeout: float,
+                 poll: Callable[[], int], epoch_ns: int = EPOCH_NS) -> None:
+        self.every = int(every)
+        self.timeout = float(timeout)
+        self._dt_ns = round(dt * 1e9)
+        self.epoch_ns = int(epoch_ns)
+        # a stamp within half a step of a tick answers it (stamps that went through float
+        # seconds come back a few 1e-11 s off)
+        self._slack_ns = self._dt_ns // 2
+        self._poll = poll
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._command_ns = self._estimate_ns = -1
+        self.started = False
+        self._last_ok = True  # the current sync tick's waits were all answered so far
+        self.syncs = self.timeouts = 0
+        self.wait_time = 0.0  # [s] wall time spent waiting for the chain
+        self.last_timeout = ""
+        self._clock = Clock()
+        self._pub = node.create_publisher(Clock, "/clock", 10)
+        node.create_subscription(PressureCommand, PRESSURE_COMMAND.name, self._on_command,
+                                 subscriber_qos(PRESSURE_COMMAND.name, depth=10))
+        node.create_subscription(ClutchEstimate, CLUTCH_ESTIMATE.name, self._on_estimate,
+                                 subscriber_qos(CLUTCH_ESTIMATE.name, depth=10))
+
+    def now_ns(self, t: float) -> int:
+        """ROS time [ns] of simulation time ``t`` [s] (exact on plant steps)."""
+        return self.epoch_ns + round(t / (self._dt_ns * 1e-9)) * self._dt_ns
+
+    def stamp(self, t: float) -> float:
+        """ROS time [s] of simulation time ``t`` [s] (the stamp of the rig's frames)."""
+        return self.now_ns(t) * 1e-9
+
+    def stop(self) -> None:
+        """End any wait at once (thread-safe); later waits return at once."""
+        self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
+
+    def _on_command(self, msg) -> None:
+        with self._cond:
+            self._command_ns = max(self._command_ns, _ns(msg.header.stamp))
+            self._cond.notify_all()
+
+    def _on_estimate(self, msg) -> None:
+        with self._cond:
+            self._estimate_ns = max(self._estimate_ns, _ns(msg.header.stamp))
+            self._cond.notify_all()
+
+    def _publish(self, ns: int) -> None:
+        self._clock.clock.sec, self._clock.clock.nanosec = divmod(ns, 1_000_000_000)
+        self._pub.publish(self._clock)
+
+    def before_frames(self, t: float) -> None:
+        """Publish ``/clock`` = ``t``; wait for the controller's command and a PumpRequest."""
+        ns = self.now_ns(t)
+        self._publish(ns)
+        frames = [0]
+
+        def answered() -> str:
+            if self._command_ns < ns - self._slack_ns:
+                self._poll()  # (a frame before the command proves nothing: a late one)
+                return "no pressure_command stamped at the tick"
+            frames[0] += self._poll()
+            return "" if frames[0] else "no PumpRequest frame after the tick's command"
+        self._wait(ns, answered, republish=True)
+
+    def after_frames(self, t: float) -> None:
+        """Wait for the estimate of the frames just sent (stamped ``t``)."""
+        ns = self.now_ns(t)
+        self._wait(ns, lambda: "" if self._estimate_ns >= ns - self._slack_ns else
+                   "no clutch_estimate stamped at the tick", republish=True)
+        if not self._stop.is_set():
+            self.syncs += 1
+            self.started = self.started or self._last_ok
+
+    def _wait(self, ns: int, missing: Callable[[], str], republish: bool) -> None:
+        start = time.monotonic()
+        bound = start + (self.timeout if self.started else STARTUP_WAIT)
+        next_publish = start + REPUBLISH
+        why = missing()
+        while why and not self._stop.is_set():
+            now = time.monotonic()
+            if now >= bound:
+                if self.started:
+                    self.timeouts += 1
+                    self.last_timeout = (f"{why} (T = {ns * 1e-9:.3f} s) within "
+                                         f"{self.timeout:g} s")
+                break
+            if republish and now >= next_publish:
+                self._publish(ns)
+                next_publish = now + REPUBLISH
+            with self._cond:
+                self._cond.wait(min(_POLL, bound - now))
+            why = missing()
+        self.wait_time += time.monotonic() - start
+        if republish:
+            self._last_ok = not why
+        else:
+            self._last_ok = self._last_ok and not why
+
+    def values(self) -> dict:
+        """Figures for /diagnostics."""
+        return {"lockstep_syncs": self.syncs, "lockstep_timeouts": self.timeouts,
+                "lockstep_wait_s": self.wait_time, "lockstep_last_timeout": self.last_timeout,
+                "lockstep_started": self.started}

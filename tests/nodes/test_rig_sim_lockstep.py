@@ -1,0 +1,106 @@
+"""The rig_sim node in lock-step, as a real process: /clock out, the chain's answers in.
+
+This test process plays the chain: on each ``/clock`` it publishes a ``pressure_command`` and a
+``clutch_estimate`` stamped with it and sends a PumpRequest frame on the rig's udp_multicast
+group (as controller, estimator and bridge do). While it answers, the rig's clock advances in
+exact 10 ms ticks from a whole-second epoch, with one RigSpeed frame per tick; when it stops
+answering, the rig waits (its clock stands almost still) and reports the expired waits on
+/diagnostics; when it answers again, the rig runs on. Nothing here depends on how fast the
+machine is: the rig waits for the answers, and the bounds are the rig's own wait timeout.
+"""
+
+import os
+
+import pytest
+
+from clutch_ros.canbus import BusConfig, RigDatabase, open_bus
+from clutch_ros.canbus.dbc import PumpRequestCodec
+from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
+from tests.canbus.recorder import BusRecorder, bus_params, private_group
+from tests.nodes.rclpy_harness import Harness
+
+pytestmark = pytest.mark.ros
+
+DB = RigDatabase()
+RIG_SPEED = DB.frame("RigSpeed").frame_id
+TICK_NS = 10_000_000
+TIMEOUT = 0.3  # [s] the rig's wait bound in this test
+
+
+def _ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def _timeouts(diags) -> list[tuple[int, int]]:
+    """(level, lockstep_timeouts) of each /rig_sim status received."""
+    out = []
+    for array in diags:
+        for st in array.status:
+            if st.name == "/rig_sim":
+                kv = {v.key: v.value for v in st.values}
+                level = st.level[0] if isinstance(st.level, bytes) else int(st.level)
+                out.append((level, int(float(kv["lockstep_timeouts"]))))
+    return out
+
+
+def test_lockstep_rig_waits_for_the_chain_and_counts_expired_waits(tmp_path):
+    from clutch_msgs.msg import ClutchEstimate, PressureCommand
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from rosgraph_msgs.msg import Clock
+
+    group, port = private_group()
+    codec = PumpRequestCodec(DB)
+    sender = open_bus(BusConfig(interface="udp_multicast", channel=group, fd=True,
+                                extra={"port": port}))
+    with BusRecorder(group, port) as rec:
+        rig = NodeProcess("rig_sim", ["--ros-args", *ros_param_args(
+            {**bus_params(group, port), "rig.lockstep": True,
+             "rig.lockstep_timeout": TIMEOUT})],
+            isolated_ros_env(int(os.environ["ROS_DOMAIN_ID"])), tmp_path)
+        try:
+            with Harness("rig_sim_lockstep_test") as h:
+                clocks: list[int] = []
+                answering = [True]
+                counter = [0]
+                cmd_pub = h.node.create_publisher(PressureCommand, "pressure_command", 10)
+                est_pub = h.node.create_publisher(ClutchEstimate, "clutch_estimate", 10)
+
+                def on_clock(msg) -> None:
+                    clocks.append(_ns(msg.clock))
+                    if not answering[0]:
+                        return
+                    cmd = PressureCommand()
+                    cmd.header.stamp = msg.clock
+                    cmd_pub.publish(cmd)
+                    sender.send(codec.encode(0.0, counter[0]))
+                    counter[0] = (counter[0] + 1) % 16
+                    est = ClutchEstimate()
+                    est.header.stamp = msg.clock
+                    est_pub.publish(est)
+
+                h.node.create_subscription(Clock, "/clock", on_clock, 10)
+                diags = h.collect(DiagnosticArray, "/diagnostics", 50)
+                h.spin_until(lambda: len(set(clocks)) >= 300, 120.0, "300 lock-step ticks")
+                ticks = sorted(set(clocks))
+                assert all(b - a == TICK_NS for a, b in zip(ticks, ticks[1:]))  # none skipped
+                assert ticks[0] % TICK_NS == 0 and ticks[0] < 200_000 * 10**9  # the fixed epoch
+                sent = rec.count(RIG_SPEED)
+                assert len(ticks) - 2 <= sent <= len(ticks) + 1  # one RigSpeed per tick
+
+                answering[0] = False  # the chain falls silent: the rig waits, bounded
+                before = len(set(clocks))
+                h.spin_for(2.0)
+                # each tick now waits TIMEOUT twice (answer, estimate): a few ticks at most
+                assert len(set(clocks)) - before <= 2.0 / (2 * TIMEOUT) + 2
+                h.spin_until(lambda: any(lvl == DiagnosticStatus.WARN and n > 0
+                                         for lvl, n in _timeouts(diags)), 30.0,
+                             "a WARN with the expired waits")
+
+                answering[0] = True  # answers again: the rig runs on
+                resumed = len(set(clocks))
+                h.spin_until(lambda: len(set(clocks)) >= resumed + 200, 120.0,
+                             "200 more ticks")
+                assert rig.alive()
+        finally:
+            rig.stop()
+            sender.shutdown()
