@@ -15,6 +15,10 @@ in the same run, with a bare python-can receive loop in its own process:
   every socket on the host) -> RigState received by an rclpy subscriber in this process;
   bare loop: bus timestamp -> ``recv()`` returned. Median and 99th percentile.
 
+``--sustained [--seconds 60] [--rate 8000]``: a full bus for a minute, the rig's own frames
+plus foreign ones, with frame accounting, trigger-to-RigState latency and CPU per receiver
+(:mod:`benchmarks.can_bridge_sustained`).
+
 Each bridge mode (``--modes``: ``publish_on`` RigSpeed, the default, and ``timer``) is a
 separate node process. The sender shares the machine's cores with the receivers, so the
 figures are lower bounds of what the receivers can do on a quiet machine. rclpy is imported
@@ -43,7 +47,7 @@ from clutch_ros.canbus.dbc import RigDatabase
 __all__ = ["ReceiverResult", "StepResult", "main", "run"]
 
 _START, _END, _EXIT = 0x7F0, 0x7F1, 0x7F2  # control frames (not in the DBC)
-_ROOT = Path(__file__).resolve().parents[2]
+_ROOT = Path(__file__).resolve().parents[1]  # the repository
 
 
 @dataclass
@@ -340,9 +344,12 @@ def _measure_bridge(sender, ros, group, port, mode, rates, step_s, lat_s, env, l
     return result
 
 
-def run(rates=(1000, 2000, 5000, 10000, 20000, 30000), step_s: float = 3.0, lat_s: float = 5.0,
-        modes=("trigger", "timer"), log_dir: Path | None = None) -> tuple[str, list]:
-    """Run the benchmark; return ``(bus description, [ReceiverResult, ...])``."""
+def private_run(log_dir: Path | None, prefix: str) -> tuple[str, int, dict, Path]:
+    """Return a private multicast group, port, child environment and log directory.
+
+    This process joins the same ROS domain (localhost discovery), so its rclpy subscribers
+    see the children's topics.
+    """
     group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"
     port = random.randint(20000, 60000)
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1",
@@ -350,8 +357,15 @@ def run(rates=(1000, 2000, 5000, 10000, 20000, 30000), step_s: float = 3.0, lat_
     env["PYTHONPATH"] = str(_ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     os.environ["ROS_DOMAIN_ID"] = env["ROS_DOMAIN_ID"]
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    log_dir = log_dir or Path("/tmp") / f"clutch_node_bench_{os.getpid()}"
+    log_dir = log_dir or Path("/tmp") / f"{prefix}_{os.getpid()}"
     log_dir.mkdir(parents=True, exist_ok=True)
+    return group, port, env, log_dir
+
+
+def run(rates=(1000, 2000, 5000, 10000, 20000, 30000), step_s: float = 3.0, lat_s: float = 5.0,
+        modes=("trigger", "timer"), log_dir: Path | None = None) -> tuple[str, list]:
+    """Run the benchmark; return ``(bus description, [ReceiverResult, ...])``."""
+    group, port, env, log_dir = private_run(log_dir, "clutch_node_bench")
     sender = _Sender(BusConfig(interface="udp_multicast", channel=group, extra={"port": port}))
     results = [_measure_bare(sender, group, port, rates, step_s, lat_s)]
     if modes:
@@ -371,6 +385,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--bare-receiver"]:
         return _bare_receiver(argv[1], int(argv[2]))
+    if "--sustained" in argv:  # a full bus for a minute: its own module
+        from benchmarks.can_bridge_sustained import main as sustained
+
+        return sustained(argv)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rates", default="1000,2000,5000,10000,20000,30000",
                         help="throughput steps [frames/s], comma separated")

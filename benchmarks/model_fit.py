@@ -57,6 +57,7 @@ RIG_TRUTH = {
     "thermal.oil_temperature": 35.0, "spline.law": "coulomb",
     "spline.gain": 0.0, "spline.time_constant": 1.0, "spline.friction_coefficient": 0.05,
     "spline.radius": 0.05, "slip.filter_time_constant": 0.02,
+    "drivetrain.stiffness": 0.0, "drivetrain.damping": 0.0,
 }
 #: Rig defaults used around the pack (clutch_ros.rig: PumpParams, ThermalParams, NoiseParams).
 PUMP_TIME_CONSTANT = 0.05  # [s]

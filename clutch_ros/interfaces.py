@@ -185,7 +185,8 @@ class EstimateField(NamedTuple):
         kind: ``float64``, ``float64[]`` (per lamella, rear to front), ``bool`` or ``string``.
         unit: SI unit (``1``: dimensionless; ``""``: none).
         source: ``estimate``: the model's ``Estimate`` / ``EstimateBatch`` attribute ``attr``;
-            ``adaptation``: the ``AdaptationStatus`` attribute ``attr``.
+            ``adaptation``: the ``AdaptationStatus`` attribute ``attr``; ``uncertainty``: the
+            error model's output (:mod:`clutch_ros.model.uncertainty`), set by the caller.
         attr: the attribute of the source.
         state: for a bool filled from a state name: true when ``attr`` equals it
             (``adaptation_frozen``: ``state == "frozen"``); empty otherwise.
@@ -212,6 +213,7 @@ def _adapt(name: str, kind: str, unit: str, attr: str = "", state: str = "") -> 
 #: message order (``msg_defs/msg/ClutchEstimate.msg``).
 ESTIMATE_FIELDS: tuple[EstimateField, ...] = (
     _est("modelled_torque", "float64", "N m"),
+    EstimateField("modelled_torque_std", "float64", "N m", "uncertainty", "modelled_torque_std"),
     _est("reference_torque", "float64", "N m"),
     _est("measured_torque", "float64", "N m"),
     _est("torque_accuracy", "float64", "1"),

@@ -25,7 +25,13 @@ from clutch_ros.bag.columns import _PRIM, ColumnDecoder, CorruptMessageError
 from clutch_ros.bag.diagnose import blame_file
 from clutch_ros.bag.errors import BagCorruptError, BagError, MessageFieldError
 from clutch_ros.bag.reader import BagReader
-from clutch_ros.bag.typestore import Typestore, clutch_typestore, make_msg, topic_name
+from clutch_ros.bag.typestore import (
+    ADDED_FIELDS,
+    Typestore,
+    clutch_typestore,
+    make_msg,
+    topic_name,
+)
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.interfaces import NS_PER_S
 
@@ -184,8 +190,9 @@ def read_columns(
         typename = conns[0].msgtype
         for conn in conns:
             bag._check_type(conn)
+        store_ = bag.store_for(conns[0])  # an older definition (typestore.ADDED_FIELDS)
         try:
-            decoder = ColumnDecoder(bag.store, typename)
+            decoder = ColumnDecoder(store_, typename)
         except ValueError as err:
             raise BagError(bag.path, f"{name}: cannot read {typename} as columns: {err}") from err
         raws: list[bytes] = []
@@ -201,8 +208,10 @@ def read_columns(
             ) from err
         strings: dict[str, str] = {}
         if raws:
-            first = bag.store.deserialize_cdr(raws[0], typename)
-            strings = _strings(bag.store, typename, first)
+            first = store_.deserialize_cdr(raws[0], typename)
+            strings = _strings(store_, typename, first)
+        for added in ADDED_FIELDS.get(typename, ()):  # absent from an older bag: NaN
+            cols.setdefault(added, np.full(len(raws), np.nan))
     if "header.stamp.sec" in cols:
         cols["stamp_ns"] = cols["header.stamp.sec"].astype(np.int64) * NS_PER_S + cols[
             "header.stamp.nanosec"

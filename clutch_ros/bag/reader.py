@@ -47,7 +47,13 @@ from clutch_ros.bag.errors import (
     BagNotFoundError,
     UnknownTypeError,
 )
-from clutch_ros.bag.typestore import Typestore, clutch_typestore, topic_name
+from clutch_ros.bag.typestore import (
+    ADDED_FIELDS,
+    Typestore,
+    clutch_typestore,
+    legacy_typestore,
+    topic_name,
+)
 
 __all__ = [
     "BagMessage",
@@ -89,6 +95,9 @@ class BagReader:
     def __init__(self, path: str | Path, *, store: Typestore | None = None, verify: bool = False):
         self.path = Path(path)
         self.store = store or clutch_typestore()
+        self._default_store = store is None
+        # connection id -> the store of its older definition (typestore.ADDED_FIELDS)
+        self._conn_store: dict[int, Typestore] = {}
         self.verify = verify
         self._reader: Reader | None = None
         self._hashes: dict[str, str] = {}
@@ -230,6 +239,8 @@ class BagReader:
             ours = self._hashes.get(typename)
             if ours is None:
                 ours = self._hashes[typename] = self.store.hash_rihs01(typename)
+            if ours != digest and self._is_legacy(conn, typename, digest):
+                return
             if ours != digest:
                 raise UnknownTypeError(
                     self.path,
@@ -237,6 +248,20 @@ class BagReader:
                     f"definition in this package ({ours}); regenerate or convert the bag",
                     typename=typename,
                 )
+
+    def store_for(self, conn: Connection) -> Typestore:
+        """Return the typestore that decodes ``conn`` (checked by :meth:`check_types`)."""
+        return self._conn_store.get(conn.id, self.store)
+
+    def _is_legacy(self, conn: Connection, typename: str, digest: str) -> bool:
+        """Return True (and remember it) when ``conn`` has the definition before ADDED_FIELDS."""
+        if not self._default_store or typename not in ADDED_FIELDS:
+            return False
+        legacy = legacy_typestore()
+        if legacy.hash_rihs01(typename) != digest:
+            return False
+        self._conn_store[conn.id] = legacy
+        return True
 
     def messages(
         self,
@@ -280,7 +305,9 @@ class BagReader:
                     yield BagMessage(topic, timestamp, data)
                     continue
                 try:
-                    msg = deserialize(data, conn.msgtype)
+                    store = self._conn_store.get(conn.id)
+                    msg = (store.deserialize_cdr(data, conn.msgtype) if store is not None
+                           else deserialize(data, conn.msgtype))
                 except Exception as err:  # noqa: BLE001 - SerdeError, struct.error, ...
                     raise BagCorruptError(
                         blame_file(self.path),

@@ -31,6 +31,7 @@ from clutch_ros.errors import ConfigError
 
 __all__ = [
     "topic_name",
+    "ADDED_FIELDS",
     "BASE_STORE",
     "CAN_FRAME_TYPE",
     "CLOCK_TYPE",
@@ -45,6 +46,7 @@ __all__ = [
     "clutch_typestore",
     "find_msg_dir",
     "header_msg",
+    "legacy_typestore",
     "make_msg",
     "msg_class",
     "ns_to_stamp",
@@ -117,15 +119,36 @@ def find_msg_dir(msg_dir: str | Path | None = None) -> Path:
     raise BagError(None, f"no clutch_msgs .msg files found (looked in {tried})")
 
 
+#: Fields added to ``clutch_msgs`` types after bags were recorded with them: type -> names.
+#: A bag recorded before a field existed still reads (:func:`legacy_typestore`; the
+#: messages of such a bag lack the field).
+ADDED_FIELDS: dict[str, tuple[str, ...]] = {
+    CLUTCH_ESTIMATE_TYPE: ("modelled_torque_std",),
+}
+
+
+def _without_added(typename: str, text: str) -> str:
+    """Return ``.msg`` text without the :data:`ADDED_FIELDS` of ``typename``."""
+    drop = ADDED_FIELDS.get(typename, ())
+    return "\n".join(line for line in text.splitlines()
+                     if not (line.split("#", 1)[0].split()[1:2] and
+                             line.split("#", 1)[0].split()[1] in drop))
+
+
 @lru_cache(maxsize=8)
-def _build_typestore(msg_dir: str) -> Typestore:
-    """Build (once per directory) the base store plus every ``.msg`` file in ``msg_dir``."""
+def _build_typestore(msg_dir: str, legacy: bool = False) -> Typestore:
+    """Build (once per directory) the base store plus every ``.msg`` file in ``msg_dir``.
+
+    ``legacy``: the types as they were before :data:`ADDED_FIELDS` were added.
+    """
     store = get_typestore(BASE_STORE)
     types: dict[str, Any] = {}
     for path in sorted(Path(msg_dir).glob("*.msg")):
         typename = f"{PACKAGE}/msg/{path.stem}"
         try:
-            types.update(get_types_from_msg(path.read_text(encoding="utf-8"), typename))
+            text = path.read_text(encoding="utf-8")
+            types.update(get_types_from_msg(_without_added(typename, text) if legacy else text,
+                                            typename))
         except (OSError, UnicodeDecodeError, TypesysError) as err:
             raise BagError(path, f"cannot parse message definition: {err}") from err
     try:
@@ -152,6 +175,16 @@ def clutch_typestore(msg_dir: str | Path | None = None) -> Typestore:
     if msg_dir is None:
         return _build_typestore(_default_msg_dir())
     return _build_typestore(str(find_msg_dir(msg_dir)))
+
+
+def legacy_typestore(msg_dir: str | Path | None = None) -> Typestore:
+    """Return the typestore of the ``clutch_msgs`` types without their :data:`ADDED_FIELDS`.
+
+    What bags recorded before those fields existed were written with; the reader decodes
+    such a bag's topics with it when their recorded type hash matches it.
+    """
+    return _build_typestore(str(find_msg_dir(msg_dir)) if msg_dir is not None
+                            else _default_msg_dir(), True)
 
 
 def msg_class(typename: str, store: Typestore | None = None) -> type:

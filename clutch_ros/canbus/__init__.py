@@ -13,6 +13,10 @@ Modules:
   recovery with back-off, removal of the udp_multicast echo of our own frames).
 * :mod:`~clutch_ros.canbus.udp` -- udp_multicast specifics: echo filter, group isolation and
   receive buffer of the socket.
+* :mod:`~clutch_ros.canbus.batch` -- frames as plain tuples, read from a udp_multicast
+  socket in batches (``ReconnectingBus.recv_batch``, the can_bridge's receive path).
+* :mod:`~clutch_ros.canbus.fastdecode` -- :class:`FastDecoder`, the DBC decode from tables
+  compiled per frame (the values of ``RigDatabase.decode``, bit for bit).
 * :mod:`~clutch_ros.canbus.assembler` -- :class:`RigStateAssembler` (a ``can.Listener``)
   filling :class:`RigSample` (one RigState in SI units, with stale mask; defined in
   :mod:`clutch_ros.rigstate`).
@@ -23,7 +27,8 @@ Modules:
 * :mod:`~clutch_ros.canbus.errors` -- :class:`CanError` and its subclasses.
 
 Benchmarks of this layer live outside the package: ``python -m benchmarks.can_decode``
-(receive path) and ``python -m benchmarks.can_bridge_node`` (the can_bridge node process).
+(receive path) and ``python -m benchmarks.can_bridge_node`` (the can_bridge node process;
+``--sustained``: 8,000 frames/s for a minute).
 """
 
 from clutch_ros.canbus.assembler import RigStateAssembler

@@ -51,8 +51,9 @@ from dataclasses import dataclass
 import can
 
 from clutch_ros.canbus.counters import CounterSnapshot, FrameCounters, classify_socketcan_error
-from clutch_ros.canbus.dbc import RigDatabase, counter_gap, frame_key
+from clutch_ros.canbus.dbc import CAN_EFF_FLAG, RigDatabase, counter_gap
 from clutch_ros.canbus.errors import FrameDecodeError
+from clutch_ros.canbus.fastdecode import FastDecoder
 from clutch_ros.canbus.signal_map import GROUPS, ResolvedMap, SignalMap, Write
 from clutch_ros.errors import ConfigError
 from clutch_ros.rigstate import FIELDS, RigSample
@@ -144,6 +145,8 @@ class RigStateAssembler(can.Listener):
         }
         self._cycle = {spec.key: spec.cycle_time for spec in self.db.frames}
         self._known = self.db.keys
+        #: decodes a known frame key's payload (compiled tables; cantools for the rest)
+        self._decode = FastDecoder(self.db).decode
         self._socketcan_errors = socketcan_error_frames
         self._lock = threading.Lock()
         self._counters = FrameCounters()
@@ -161,41 +164,55 @@ class RigStateAssembler(can.Listener):
         Returns the frame key of a data frame (:func:`frame_key`), None for error, remote and
         invalid frames. Never raises for bad frames.
         """
-        if msg.is_error_frame:
+        return self.feed_frame(float(msg.timestamp), msg.arbitration_id, msg.is_extended_id,
+                               msg.is_remote_frame, msg.is_error_frame, msg.is_fd, msg.dlc,
+                               msg.data)
+
+    def feed_frame(self, stamp: float, arbitration_id: int, is_extended: bool,
+                   is_remote: bool, is_error: bool, is_fd: bool, dlc: int,
+                   data: bytes | bytearray) -> int | None:
+        """:meth:`feed` for a frame given by its fields (no :class:`can.Message` needed).
+
+        The fields of :data:`clutch_ros.canbus.batch.RawFrame`, in its order: bus time
+        ``stamp`` [s], identifier, flags, DLC and payload.
+        """
+        if is_error:
             with self._lock:
                 c = self._counters
                 c.frames_total += 1
                 c.error_frames += 1
                 if self._socketcan_errors:
-                    bus_off, overflow = classify_socketcan_error(msg.arbitration_id, msg.data)
+                    bus_off, overflow = classify_socketcan_error(arbitration_id, data)
                     c.bus_off_frames += bus_off
                     c.controller_overflows += overflow
             return None
-        key = frame_key(msg.arbitration_id, msg.is_extended_id)
-        valid = _valid_frame(msg)
+        key = arbitration_id | CAN_EFF_FLAG if is_extended else arbitration_id
+        size = len(data)
+        valid = (0 <= arbitration_id < (0x20000000 if is_extended else 0x800)
+                 and size <= (64 if is_fd else 8) and (is_remote or dlc == size))
+        known = key in self._known
         values: dict[str, float | int] | None = None
         reason: str | None = None
-        if valid and not msg.is_remote_frame and key in self._known:
+        if valid and known and not is_remote:
             try:
-                values = self.db.decode(msg.arbitration_id, msg.data, msg.is_extended_id)
+                values = self._decode(key, data)
             except FrameDecodeError as err:
                 reason, values = err.reason, err.values
-        stamp = float(msg.timestamp)
         with self._lock:
             c = self._counters
             c.frames_total += 1
-            if msg.is_fd:
+            if is_fd:
                 c.fd_frames += 1
-            if msg.is_remote_frame:
+            if is_remote:
                 c.remote_frames += 1
-                if key in self._known:
+                if known:
                     c.per_id[key] += 1
                 return None
             c.data_frames += 1
             if not valid:
                 c.decode_errors["invalid_frame"] += 1
                 return None
-            if key not in self._known:
+            if not known:
                 c.count_unknown(key)
                 return key
             c.per_id[key] += 1
@@ -306,15 +323,6 @@ class RigStateAssembler(can.Listener):
         if sample.stale_mask & 1:  # pressure_torque stale: no valid measured torque
             sample.has_measured_torque = False
         return sample
-
-
-def _valid_frame(msg: can.Message) -> bool:
-    """Return False for a frame no CAN controller could have sent (see module docstring)."""
-    limit = 0x20000000 if msg.is_extended_id else 0x800
-    size = len(msg.data)
-    if not 0 <= msg.arbitration_id < limit or size > (64 if msg.is_fd else 8):
-        return False
-    return msg.is_remote_frame or msg.dlc == size
 
 
 def _filler(writes: tuple[Write, ...]) -> Callable[[RigSample, Mapping[str, float | int]],

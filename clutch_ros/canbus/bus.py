@@ -34,6 +34,7 @@ from typing import Any
 import can
 import can.interfaces
 
+from clutch_ros.canbus.batch import RawFrame, UdpBatchReader, message_frame
 from clutch_ros.canbus.config import BusConfig, open_bus, parse_filters
 from clutch_ros.canbus.counters import RateLimiter, classify_socketcan_error
 from clutch_ros.canbus.errors import BusConfigError, BusUnavailable
@@ -181,6 +182,7 @@ class ReconnectingBus(can.BusABC):
         self._echo = EchoFilter() if drop_own_echo else None  # bus time: time.time
         self._lock = threading.RLock()
         self._bus: can.BusABC | None = None
+        self._reader: tuple[can.BusABC | None, UdpBatchReader | None] = (None, None)
         self._state = LinkState.CONNECTING
         self._reason = "not yet opened"
         now = clock()
@@ -333,6 +335,40 @@ class ReconnectingBus(can.BusABC):
                     self._fail(bus, "bus-off error frame")
         self._poll_state(bus)
         return msg, True  # the underlying bus applied the filters
+
+    def recv_batch(self, timeout: float | None, limit: int = 256) -> list[RawFrame]:
+        """Receive what is queued, up to ``limit`` frames, waiting up to ``timeout`` [s].
+
+        :meth:`recv` for many frames at once, as :data:`~clutch_ros.canbus.batch.RawFrame`
+        tuples: echoes removed, malformed datagrams counted, failures taking the link down
+        alike. On udp_multicast the datagrams are read without a ``can.Message`` each
+        (:class:`~clutch_ros.canbus.batch.UdpBatchReader`); other interfaces use :meth:`recv`.
+        Raises ``can.CanOperationError`` after :meth:`shutdown`, as :meth:`recv` does.
+        """
+        bus = self._current()
+        if bus is not None and self._reader[0] is not bus:
+            self._reader = (bus, None if self._socketcan_errors else UdpBatchReader.for_bus(bus))
+        reader = self._reader[1] if bus is not None else None
+        if bus is None or reader is None:
+            out, msg = [], self.recv(timeout)
+            while msg is not None:
+                out.append(message_frame(msg))
+                msg = self.recv(0.0) if len(out) < limit else None
+            return out
+        errors: list[BaseException] = []
+        try:
+            frames = reader.read(timeout, limit, errors)
+        except Exception as err:  # CanOperationError, OSError: as recv()
+            self._fail(bus, f"receive failed: {type(err).__name__}: {err}")
+            return []
+        for bad in errors:
+            self._count_malformed(malformed_reason(bad) or "not_a_frame", bad)
+        echo = self._echo
+        if echo is not None and echo.waiting:
+            frames = [f for f in frames if not echo.is_echo_of(
+                (f[1], f[2], f[3], f[4], f[5], f[7]), f[0])]
+        self._poll_state(bus)
+        return frames
 
     def _count_malformed(self, reason: str, err: BaseException) -> None:
         with self._lock:

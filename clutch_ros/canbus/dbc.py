@@ -276,6 +276,11 @@ class RigDatabase:
         except KeyError:
             raise DbcError(f"{self.path}: no signal named {name!r}") from None
 
+    def decode_tables(self, key: int) -> tuple[Any, tuple[tuple[str, float], ...],
+                                               tuple[tuple[str, float, float], ...]]:
+        """Return frame ``key``'s cantools message, SI factors and SI ranges."""
+        return self._messages[key], self._factors[key], self._ranges[key]
+
     # -- decoding -------------------------------------------------------------------------
 
     def decode(

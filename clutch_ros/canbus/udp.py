@@ -182,6 +182,11 @@ class EchoFilter:
         #: echoes recognised and removed
         self.echoes = 0
 
+    @property
+    def waiting(self) -> bool:
+        """True while a sent frame's echo is expected (else no frame can be an echo)."""
+        return bool(self._pending)
+
     def _expire(self, stream_time: float | None) -> None:
         """Forget records sent over ``window`` before ``stream_time`` [s] and above capacity.
 
@@ -223,8 +228,15 @@ class EchoFilter:
         """Return True (and forget one record) when ``msg`` is the echo of a sent frame."""
         if not self._pending:
             return False
-        sig = _signature(msg)
-        stamp = float(msg.timestamp)
+        return self.is_echo_of(_signature(msg), float(msg.timestamp))
+
+    def is_echo_of(self, sig: _Signature, stamp: float) -> bool:
+        """:meth:`is_echo` for a frame's signature received at bus time ``stamp`` [s].
+
+        The signature: (identifier, is_extended, is_remote, is_error, is_fd, payload bytes).
+        """
+        if not self._pending:
+            return False
         with self._lock:
             self._expire(stamp if math.isfinite(stamp) and stamp > 0.0 else self._clock())
             count = self._pending.get(sig, 0)

@@ -23,6 +23,12 @@ exit code 2; ``--fix KEY`` keeps a parameter at its base value. When a bag shows
 pressure-before-delta onset (pressure held at standstill, then slip) the oil-film friction
 (``friction.film_depth``, ``friction.film_recovery_time``) is fitted too.
 
+Reproducible: the solver stops after ``--max-evaluations`` residual evaluations (an
+evaluation budget, not a wall-time limit; ``--max-seconds`` adds one only when asked), and the
+file's header carries no clock time, so the same bags and options write the same file on an
+idle or a loaded machine. ``--fit-compliance`` identifies the drivetrain compliance
+(``drivetrain.stiffness``, ``drivetrain.damping``) too; without it they keep the base values.
+
 ``--law auto`` fits every passive law and writes the one with the lowest mean RMSE ratio
 model / Eq. 1 on the ``--validate`` bags (on the fit bags without them), printing the ratio
 per law and per validation run; ``--validate`` with one law scores just that law.
@@ -30,7 +36,6 @@ per law and per validation run; ``--validate`` with one law scores just that law
 
 from __future__ import annotations
 
-import datetime
 import sys
 from pathlib import Path
 
@@ -45,12 +50,14 @@ from clutch_ros.model.params import SPLINE_LAWS
 from clutch_ros.numeric_env import usable_cores
 from clutch_ros.offline.fit_auto import (
     AutoFitResult,
+    compliance_start,
     film_start,
     fit_auto,
     free_keys,
     score_law,
 )
 from clutch_ros.offline.flexiforce import load_runs
+from clutch_ros.offline.replay import fit_error_model_on_bags
 
 __all__ = ["add_parser", "run", "main"]
 
@@ -88,9 +95,17 @@ def add_parser(sub) -> None:
                    help="segment budget per residual evaluation; 0: every sample at the "
                         "fit rate (default per law: "
                         + ", ".join(f"{k} {v}" for k, v in SAMPLE_BUDGET.items()) + ")")
-    p.add_argument("--max-seconds", type=float, default=45.0, metavar="S",
-                   help="stop the solver at its best point after about S seconds (default "
-                        "45; 0: no limit); the result is then flagged as not converged")
+    p.add_argument("--max-seconds", type=float, default=0.0, metavar="S",
+                   help="also stop the solver at its best point after about S seconds (default "
+                        "0: no wall-time limit, the fit then depends on the data only); the "
+                        "result is then flagged as not converged")
+    p.add_argument("--max-evaluations", type=int, default=FitOptions.max_nfev, metavar="N",
+                   help="evaluation budget: residual evaluations of the solver per law "
+                        f"(default {FitOptions.max_nfev}); the same bags give the same file")
+    p.add_argument("--fit-compliance", action="store_true",
+                   help="fit the drivetrain compliance (drivetrain.stiffness [N m/rad], "
+                        "drivetrain.damping [N m s/rad]) too, and the samples at standstill "
+                        "(a stuck clutch; left out otherwise); default: fixed at --base")
     p.add_argument("--threads", type=int, default=0, metavar="N",
                    help="threads computing the finite-difference Jacobian's columns at once "
                         "(default 0: one per core this process may use; 1: one after the "
@@ -131,6 +146,11 @@ def run(args) -> int:
     if not args.max_seconds >= 0.0:
         raise ClutchError(f"--max-seconds must be >= 0, got {args.max_seconds}")
     kwargs["max_seconds"] = args.max_seconds or None
+    if not args.max_evaluations >= 1:
+        raise ClutchError(f"--max-evaluations must be >= 1, got {args.max_evaluations}")
+    kwargs["max_nfev"] = args.max_evaluations
+    if args.fit_compliance:  # a stuck clutch is what the compliance explains: fit it too
+        kwargs["min_slip_speed"] = 0.0
     kwargs["workers"] = args.threads or usable_cores()
     options = FitOptions(**kwargs)
     validation = []
@@ -138,24 +158,26 @@ def run(args) -> int:
         validation, _ = load_runs(args.validate, base.pack.piston_area, pdiff=False)
     auto = None
     if args.law == "auto":
-        auto = fit_auto(runs, validation, base, fixed=args.fix, options=options)
+        auto = fit_auto(runs, validation, base, fixed=args.fix, options=options,
+                        compliance=args.fit_compliance)
         result = auto.best.result
         assert result is not None  # the best law is chosen among those that fitted
     else:
-        keys = free_keys(args.law, runs, args.fix)
+        keys = free_keys(args.law, runs, args.fix, compliance=args.fit_compliance)
         result = fit(runs, args.law, base, fixed=args.fix, free=keys,
-                     start=film_start(base, keys), options=options)
+                     start={**film_start(base, keys), **compliance_start(base, keys)},
+                     options=options)
         if validation:
             score = score_law(args.law, result, validation)
             auto = AutoFitResult([score], score, [r.name for r in validation])
     law = result.params.spline.law
-    stamp = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
-    header = (f"clutch fit --law {args.law} ({law}) --base {args.base} ({stamp})\n"
+    header = (f"clutch fit --law {args.law} ({law}) --base {args.base}\n"
               f"bags: {', '.join(str(b) for b in args.bags)}\n"
               f"fit RMSE {result.rmse:.3f} N m; fitted: "
               + ", ".join(f"{k} = {result.values[k]:.6g} +- {result.stderr[k]:.2g}"
                           for k in result.keys))
-    write_params(result.params, out, header=header)
+    error_model = fit_error_model_on_bags(args.bags, result.params)  # modelled_torque_std
+    write_params(result.params, out, header=header, extra=error_model.to_flat())
     cal = info["calibration"]
     if args.json:
         doc = result.to_dict()
@@ -165,7 +187,8 @@ def run(args) -> int:
                    calibration_file=args.calibration_file,
                    calibration_comparison=(None if info["comparison"] is None
                                            else _comparison_brief(info["comparison"])),
-                   calibration_error=info["calibration_error"])
+                   calibration_error=info["calibration_error"],
+                   uncertainty=error_model.to_flat())
         if auto is not None:
             doc.update(auto=[s.to_dict() for s in auto.scores], best_law=auto.best.law,
                        validated_on=auto.validated_on)

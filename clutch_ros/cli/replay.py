@@ -11,7 +11,12 @@ input sample (header = input header, as the node publishes it) on ``/clutch_esti
 ``--report DIR`` writes PNG plots, among them the thesis's validation views (RMSE per
 sequence, torque accuracy over time, P_diff vs the spline force, the residual
 cross-correlation of Eq. 3; :mod:`clutch_ros.offline.replay_report`), listed per bag under
-``plots`` in the JSON. The report's measured P_diff comes from the bags' FlexiForce voltages,
+``plots`` in the JSON. The JSON also gives per bag the fraction of measured samples inside the
+95 % band ``modelled_torque +- 1.96 modelled_torque_std`` (``coverage_95``, and separately
+``coverage_95_transient`` / ``coverage_95_steady``; phases as
+:func:`clutch_ros.offline.replay.uncertainty_summary` defines them), with the error model
+``uncertainty.*`` of the parameter file (``clutch fit`` identifies it).
+The report's measured P_diff comes from the bags' FlexiForce voltages,
 calibrated on the replayed bags (``--calibration`` method) or taken from a calibration file
 written by ``clutch calibrate -o`` (``--calibration-file``). The work is done by
 :mod:`clutch_ros.offline.replay`.
@@ -30,13 +35,14 @@ from clutch_ros.bag.recover import recover_bag
 from clutch_ros.cli.calibrate import add_calibration_options, calibration_from_args
 from clutch_ros.cli.dispatch import add_batch_options, check_batch_options, emit_json
 from clutch_ros.cli.replay_adapt import AdaptiveRun, add_adapt_options, print_adaptation
-from clutch_ros.config.params_file import load_params
+from clutch_ros.config.params_file import load_flat, load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
 from clutch_ros.model.batch import warm_up
 from clutch_ros.model.params import SPLINE_LAWS
+from clutch_ros.model.uncertainty import ErrorModel, torque_std
 from clutch_ros.offline.batch import run_jobs
-from clutch_ros.offline.replay import ReplayJob
+from clutch_ros.offline.replay import ReplayJob, stamps_s, uncertainty_summary
 from clutch_ros.offline.replay import replay_bag as replay
 from clutch_ros.offline.replay_report import ReplayReport
 
@@ -87,6 +93,7 @@ def replay_bag(bag: Path, params) -> tuple[object, object]:
 def run(args) -> int:
     """Replay every bag; print one summary line (or JSON object) per bag."""
     params = load_params(preset_path(args.params))
+    error_model = ErrorModel.from_flat(load_flat(preset_path(args.params)))
     if args.law:  # ff_t/ff_v take Table 7's 10 rpm gain and time constant
         params = params.with_law(args.law)
     bags = [Path(b) for b in args.bags]
@@ -112,7 +119,8 @@ def run(args) -> int:
                           "it cannot be combined with --cluster")
     serial = args.jobs == 1 and not args.cluster
     job = ReplayJob(params, storage=args.storage, keep_result=report is not None,
-                    topic=args.topic, pipeline=None if serial and not args.no_stream else False)
+                    topic=args.topic, pipeline=None if serial and not args.no_stream else False,
+                    error_model=error_model)
     results = []
     scratch = tempfile.TemporaryDirectory(prefix="clutch-recover-") if args.recover else None
     items, recoveries = [], []
@@ -129,7 +137,7 @@ def run(args) -> int:
     # large); in parallel, the workers return summaries only (whole results with --report)
     done: Iterator[Any]
     if adaptive.enabled:
-        done = (_adaptive_job(adaptive, item, args) for item in items)
+        done = (_adaptive_job(adaptive, item, args, error_model) for item in items)
     elif serial:
         done = (job(item) for item in items)
     else:
@@ -172,12 +180,16 @@ def run(args) -> int:
     return 0
 
 
-def _adaptive_job(adaptive, item, args):
+def _adaptive_job(adaptive, item, args, error_model):
     """Replay one bag with the adaptive estimator (serial: it learns across the bags)."""
     source, out = item
     start = time.perf_counter()
     result, write = adaptive.replay(source, topic=args.topic)
+    # modelled_torque_std of the adapted torque, as the node computes it
+    result.torque_std = torque_std(error_model, stamps_s(result.rig),
+                                   result.batch.modelled_torque, result.batch.slip_speed_filtered)
     summary = result.summary
+    summary.update(uncertainty_summary(result.rig, result.batch, result.torque_std))
     seconds = time.perf_counter() - start
     summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
     if out is not None:

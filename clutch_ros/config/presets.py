@@ -25,6 +25,7 @@ PRESETS = {
     "test_a": "test_a_organic13.yaml",
     "test_b": "test_b_sintered10.yaml",
     "rig_truth": "rig_truth.yaml",
+    "rig_test_a": "rig_test_a.yaml",
 }
 DBC_NAME = "rig.dbc"
 #: The Foxglove layout shipped in params/.

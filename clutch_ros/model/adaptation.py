@@ -81,16 +81,19 @@ def fork_estimator(estimator: ClutchEstimator, params: ClutchParams | None = Non
                    **kwargs: Any) -> ClutchEstimator:
     """Return an independent :class:`ClutchEstimator` in the same state as ``estimator``.
 
-    Pack state (:meth:`PackModel.restore`), slip filter and clock are copied; ``params``
-    (default: the same) are then applied with :meth:`ClutchEstimator.set_params`, so a
-    changed spline gain rescales the law's state as if it had always applied. (``deepcopy``
-    is not an option: the pack's state vector has numpy views that a deep copy detaches.)
+    Pack state (:meth:`PackModel.restore`), slip filter, drivetrain compliance and clock are
+    copied; ``params`` (default: the same) are then applied with
+    :meth:`ClutchEstimator.set_params`, so a changed spline gain rescales the law's state as
+    if it had always applied. (``deepcopy`` is not an option: the pack's state vector has
+    numpy views that a deep copy detaches.)
     ``kwargs`` are the estimator's constructor options.
     """
     other = ClutchEstimator(estimator.params, **kwargs)
     other.pack.restore(estimator.pack.state)
     other.slip_filter = copy.copy(estimator.slip_filter)
     other.last_stamp = estimator.last_stamp
+    if estimator.drive is not None and other.drive is not None:  # the compliance's state
+        other.drive.state[:] = estimator.drive.state
     if params is not None:
         other.set_params(params)
     return other

@@ -16,8 +16,10 @@ but ``ff_t_printed`` / ``ff_v_printed``), to rounding with the numpy engine and 
 laws (their vectorised outputs may round the last bit differently at piece ends;
 tests/model/test_batch.py states the tolerances). What carries across pieces: the largest
 finite stamp so far (rejections), the last accepted sample (gap test, segment continuation),
-the filtered slip (the filter continues) and the pack state (the segment continues without a
-reset).
+the filtered slip (the filter continues), the pack state (the segment continues without a
+reset) and, with a drivetrain compliance (:mod:`~clutch_ros.model.compliance`), its twist and
+the clutch's slip (a new segment starts it as :class:`~clutch_ros.model.estimator
+.ClutchEstimator` does).
 
 Shapes: every :class:`EstimateBatch` array is (n,) except ``lamella_normal_force`` and
 ``spline_friction_force`` (n, N), N = ``params.pack.lamella_count``. Units as
@@ -33,6 +35,7 @@ import numpy as np
 
 from clutch_ros.model import kernel
 from clutch_ros.model.arraytypes import BoolArray, FloatArray, IntArray
+from clutch_ros.model.compliance import capacities, drive_series, reset_state
 from clutch_ros.model.errors import DuplicateSample, InputError, NonFiniteSample, OutOfOrderSample
 from clutch_ros.model.pack import PackModel
 from clutch_ros.model.simulate import simulate, simulate_columns
@@ -76,6 +79,7 @@ class EstimateBatch:
     compression: FloatArray
     spline_correction: FloatArray
     spline_law: str
+    clutch_slip_speed: FloatArray | None = None  # ω_c [rad/s]; NaN: compliance off
 
     def __len__(self) -> int:
         return int(self.stamp.size)
@@ -83,7 +87,8 @@ class EstimateBatch:
 
 _TORQUE, _REFERENCE, _MU, _FRONT, _REAR, _Z, _TEMP, _FILM, _CORRECTION = range(9)
 _SLIP = len(kernel.OUTPUT_COLUMNS)
-_N_COLS = _SLIP + 1
+_CLUTCH_SLIP = _SLIP + 1
+_N_COLS = _SLIP + 2
 _INPUTS = ("t", "p", "temp", "omega", "meas")
 _REJECTED = {1: NonFiniteSample, 2: DuplicateSample, 3: OutOfOrderSample}
 
@@ -157,6 +162,7 @@ class BatchEstimator:
         self.n = 0  # samples fed
         self._prev_max = -np.inf  # largest finite stamp fed [s]
         self._last: int | None = None  # row of the last accepted sample
+        self._drive = np.zeros(2)  # drivetrain compliance: twist [rad], clutch slip [rad/s]
         self._alloc(max(int(capacity), 1))
 
     def _alloc(self, size: int) -> None:
@@ -301,6 +307,7 @@ class BatchEstimator:
             if nrm is not None and spl is not None:
                 nrm[offset:offset + count] = sim.normal_force
                 spl[offset:offset + count] = sim.spline_force
+        self._comply(out, offset, count, ts, omegas, cont)
         if out is not cols:
             cols[:, rows] = out
             if nrm_all is not None and spl_all is not None and nrm is not None \
@@ -312,6 +319,23 @@ class BatchEstimator:
             if nrm_all is not None and spl_all is not None and keep[1] is not None \
                     and keep[2] is not None:
                 nrm_all[rows[0]], spl_all[rows[0]] = keep[1], keep[2]
+
+    def _comply(self, out: FloatArray, offset: int, count: int, ts: FloatArray,
+                omegas: FloatArray, cont: bool) -> None:
+        """Apply the drivetrain compliance to a segment's outputs (torque, clutch slip)."""
+        part = out[:, offset:offset + count]
+        params = self.params
+        if not params.drivetrain.enabled:
+            part[_CLUTCH_SLIP] = np.nan
+            return
+        if not cont:
+            reset_state(params, self._drive, float(part[_TORQUE, 0]), float(omegas[0]))
+            part[_CLUTCH_SLIP, 0] = self._drive[1]
+        t_kin, t_static = capacities(params, part[_MU], part[_Z], part[_TEMP])
+        torque, slip = drive_series(params, np.diff(ts), omegas, t_kin, t_static,
+                                    self._drive, self.engine)
+        part[_TORQUE, 1:] = torque[1:]
+        part[_CLUTCH_SLIP, 1:] = slip[1:]
 
     def result(self) -> EstimateBatch:
         """Return the :class:`EstimateBatch` of everything fed (views of this object's arrays)."""
@@ -339,4 +363,4 @@ class BatchEstimator:
             overshoot=over, undershoot=under, actuating_pressure=keep(ins["p"]),
             lamella_temperature=cols[_TEMP], slip_speed=keep(ins["omega"]),
             compression=cols[_Z], spline_correction=cols[_CORRECTION],
-            spline_law=self.params.spline.law)
+            spline_law=self.params.spline.law, clutch_slip_speed=cols[_CLUTCH_SLIP])

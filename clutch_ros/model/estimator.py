@@ -21,7 +21,13 @@ Per sample:
    assumption is meaningless, and equilibrium is the best guess.
 3. The slip speed is low-passed (``slip.filter_time_constant``, the "filtered Diff Omega" the
    friction model uses), then the pack takes one exact ZOH step.
-4. Accuracy = measured / modelled (NaN without a measurement or when |modelled| <
+4. With a drivetrain compliance (``drivetrain.stiffness`` > 0, :mod:`~.compliance`) the
+   modelled torque is what the compliance carries to the torque sensor: the pack gives the
+   kinetic and static capacities, the compliance integrates the raw measured slip speed (a
+   stuck clutch transmits what the drivetrain imposes, up to the static capacity). At an
+   initialisation it starts carrying the pack's torque, the clutch slipping at the sample's
+   slip speed. Off (the default), nothing changes.
+5. Accuracy = measured / modelled (NaN without a measurement or when |modelled| <
    ``accuracy_min_torque``, default 1 N m); overshoot / undershoot: accuracy > 1.1 / < 0.9.
 
 :func:`~clutch_ros.model.batch.estimate_batch` gives the same result as looping
@@ -38,6 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from clutch_ros.model.compliance import Drivetrain, capacity_scalar
 from clutch_ros.model.errors import (
     DuplicateSample,
     InputError,
@@ -75,6 +82,8 @@ class Estimate:
         slip_speed: raw input [rad/s]; compression: z_N [m]
         spline_correction: pressure equivalent of the spline loss [Pa]
         reinitialised: the pack was (re)initialised to equilibrium at this sample
+        clutch_slip_speed: the clutch's own slip speed ω_c behind the drivetrain compliance
+            [rad/s] (0 while it sticks; NaN when the compliance is off)
 
     """
 
@@ -99,6 +108,7 @@ class Estimate:
     compression: float
     spline_correction: float
     reinitialised: bool
+    clutch_slip_speed: float = math.nan
 
 
 def _accuracy(measured: float, modelled: float, floor: float) -> float:
@@ -132,6 +142,7 @@ class ClutchEstimator:
         self.undershoot_limit = float(undershoot_limit)
         self.pack = PackModel(params, dt_resolution=dt_resolution)
         self.slip_filter = SlipFilter(params.slip.filter_time_constant)
+        self.drive = Drivetrain(params) if params.drivetrain.enabled else None
         self.last_stamp: float | None = None
 
     @property
@@ -148,6 +159,13 @@ class ClutchEstimator:
         """Apply new parameters at runtime, keeping the pack state where its shape allows."""
         self.pack.set_params(params)
         self.slip_filter.time_constant = params.slip.filter_time_constant
+        if not params.drivetrain.enabled:
+            self.drive = None
+        elif self.drive is None:  # switched on: starts at the next initialisation
+            self.drive = Drivetrain(params)
+            self.last_stamp = None
+        else:  # the twist and the clutch slip are kept
+            self.drive.params = params
         self.params = params
 
     def check(self, stamp_s: float, actuating_pressure: float, lamella_temperature: float,
@@ -191,11 +209,21 @@ class ClutchEstimator:
             omega_f = self.slip_filter.update(dt, omega)
             sample = self.pack.step(dt, p, omega_f, temp)
         self.last_stamp = stamp
-        acc = _accuracy(measured, sample.torque, self.accuracy_min_torque)
+        torque, slip_c = sample.torque, math.nan
+        drive = self.drive
+        if drive is not None:
+            if reinit or last is None:
+                drive.reset(torque, omega)
+            else:
+                t_kin, t_static = capacity_scalar(self.params, sample.mu, sample.compression,
+                                                  sample.lamella_temperature)
+                torque = drive.step(stamp - last, omega, t_kin, t_static)
+            slip_c = drive.clutch_slip
+        acc = _accuracy(measured, torque, self.accuracy_min_torque)
         return Estimate(
-            stamp, sample.torque, sample.reference_torque, measured, acc, sample.mu,
+            stamp, torque, sample.reference_torque, measured, acc, sample.mu,
             sample.normal_force, sample.spline_force, sample.front_pressure,
             sample.rear_pressure, sample.pressure_difference, omega_f, self.params.spline.law,
             acc > self.overshoot_limit, acc < self.undershoot_limit, p,
             sample.lamella_temperature, omega,
-            sample.compression, self.pack.spline_correction(), reinit)
+            sample.compression, self.pack.spline_correction(), reinit, slip_c)

@@ -201,7 +201,7 @@ class FitOptions:
     xtol: float = 1e-6
     gtol: float = 1e-8
     max_nfev: int = 60
-    max_seconds: float | None = 45.0
+    max_seconds: float | None = None
     min_slip_speed: float = 0.05
     workers: int = 1
 

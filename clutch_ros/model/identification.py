@@ -67,6 +67,7 @@ import numpy as np
 
 from clutch_ros.model import kernel
 from clutch_ros.model.batch import estimate_batch
+from clutch_ros.model.compliance import comply
 from clutch_ros.model.fit_data import (
     SAMPLE_BUDGET,
     FitOptions,
@@ -121,6 +122,8 @@ _TRANSFORM = {
     "friction.film_depth": (False, 0.1),
     "friction.film_recovery_time": (True, 1.0),
     "friction.film_thinning_time": (True, 1.0),
+    "drivetrain.stiffness": (True, 1.0),
+    "drivetrain.damping": (True, 1.0),
 }
 _LOG_SPAN = math.log(1e3)  # log parameters may move three decades either way
 
@@ -300,9 +303,13 @@ class _Problem:
             cols = np.empty((len(kernel.OUTPUT_COLUMNS), len(s)))
             if simulate_columns(params, s.t, s.p, s.omega, s.temp, cols, model=model):
                 ys = (cols[0], cols[3], cols[4])  # torque, front and rear pressure
+                pack = (cols[2], cols[5], cols[6])  # mu, compression, temperature
             else:
                 sim = simulate(params, s.t, s.p, s.omega, s.temp, model=model)
                 ys = (sim.torque, sim.front_pressure, sim.rear_pressure)
+                pack = (sim.mu, sim.compression, sim.lamella_temperature)
+            if params.drivetrain.enabled:  # the torque through the drivetrain compliance
+                ys = (comply(params, s.t, s.omega, ys[0], pack), ys[1], ys[2])
             out.append(tuple(model_block_means(y, s.w) for y in ys))
         return out
 

@@ -78,6 +78,35 @@ def capacity_scalar(params: ClutchParams, pressure: float, lamella_temperature: 
     return 2.0 * pk.effective_radius * pk.lamella_count * pk.piston_area * mu * p
 
 
+def _closed_form(params: ClutchParams, torque: float, lamella_temperature: float,
+                 slip_speed: float, film: float, cap_max: float) -> float | None:
+    """Return the root of ``C(p) = torque`` on ``[0, max_pressure]`` in closed form, or None.
+
+    Where μ stays above its floor ``mu_min`` over the whole interval, μ is linear in p
+    (``μ = m0 + m1 p``, the pressure loss) and ``C(p) = K p (m0 + m1 p)`` a quadratic: its
+    root, in the cancellation-free form, polished by one Newton step on
+    :func:`capacity_scalar` itself, equals brentq's to rounding at a fraction of the cost
+    (the controller inverts two to four times per tick). None (floor reached, no root of the
+    quadratic in the interval): the caller brackets with brentq.
+    """
+    pk, fr = params.pack, params.friction
+    p_max = pk.max_pressure
+    k = 2.0 * pk.effective_radius * pk.lamella_count * pk.piston_area
+    m0 = mu_scalar(fr, lamella_temperature, 0.0, slip_speed, film)
+    m_max = cap_max / (k * p_max)  # μ at max_pressure
+    if not (m0 > fr.mu_min and m_max > fr.mu_min):  # μ linear only above its floor
+        return None
+    c0, c1 = k * m0, k * (m_max - m0) / p_max  # C(p) = c0 p + c1 p^2
+    disc = c0 * c0 + 4.0 * c1 * torque
+    if disc < 0.0:
+        return None
+    p = 2.0 * torque / (c0 + math.sqrt(disc))
+    slope = c0 + 2.0 * c1 * p
+    if slope > 0.0:
+        p -= (capacity_scalar(params, p, lamella_temperature, slip_speed, film) - torque) / slope
+    return p if 0.0 <= p <= p_max else None
+
+
 def solve_pressure(params: ClutchParams, torque: float, lamella_temperature: float,
                    slip_speed: float,
                    spline_correction: float = 0.0, *, clamp: bool = True,
@@ -113,13 +142,17 @@ def solve_pressure(params: ClutchParams, torque: float, lamella_temperature: flo
         p_ss = p_max
         reason = f"unreachable: {torque:.1f} N m > {cap_max:.1f} N m at max pressure"
     else:
-        # scipy.optimize takes ~0.7 s to import: loaded by the first inversion, not by
-        # everything that imports this module (clutch replay's start-up)
-        from scipy.optimize import brentq
+        closed = _closed_form(params, torque, lamella_temperature, slip_speed, film, cap_max)
+        if closed is not None:
+            p_ss = closed
+        else:
+            # scipy.optimize takes ~0.7 s to import: loaded by the first inversion that needs
+            # it, not by everything that imports this module (clutch replay's start-up)
+            from scipy.optimize import brentq
 
-        p_ss = brentq(lambda p: capacity_scalar(params, p, lamella_temperature, slip_speed, film)
-                      - torque, 0.0, p_max, xtol=1e-9, rtol=4 * np.finfo(float).eps,
-                      maxiter=200)
+            p_ss = brentq(lambda p: capacity_scalar(params, p, lamella_temperature, slip_speed,
+                                                    film) - torque,
+                          0.0, p_max, xtol=1e-9, rtol=4 * np.finfo(float).eps, maxiter=200)
     pressure = p_ss + spline_correction
     if pressure > p_max:
         pressure = p_max

@@ -3,7 +3,8 @@
 The flat form is a mapping of dotted keys (``clutch.lamella_count``...), exactly as the ROS 2
 parameter files and nodes use them; :class:`ClutchParams` is the nested, frozen form the model
 uses. The key namespace ``clutch.`` maps to the attribute ``pack``; ``friction.``, ``spline.``,
-``slip.`` and ``thermal.`` map to attributes of the same name.
+``slip.``, ``thermal.`` and ``drivetrain.`` (the compliance of :mod:`~.compliance`, off by
+default) map to attributes of the same name.
 
 :data:`PARAMETER_SPECS` is the single table of every key: unit, description, range and default
 (``None`` = required). The ROS nodes build their ParameterDescriptors from it. Keys outside the
@@ -64,13 +65,14 @@ __all__ = [
     "SplineParams",
     "SlipParams",
     "ThermalParams",
+    "DrivetrainParams",
     "ClutchParams",
     "PASSIVE_LAWS",
 ]
 
 #: Key namespace -> attribute of :class:`ClutchParams`.
 NAMESPACES = {"clutch": "pack", "friction": "friction", "spline": "spline", "slip": "slip",
-              "thermal": "thermal"}
+              "thermal": "thermal", "drivetrain": "drivetrain"}
 #: Valid values of ``spline.law``: every law of the registry (:mod:`~clutch_ros.model.laws`),
 #: the passive laws, then Eqs. 29-30 exactly as printed (not passive; for reproducing the
 #: thesis only, never a default). A live view: a law registered later is in it.
@@ -196,6 +198,12 @@ PARAMETER_SPECS: dict[str, ParamSpec] = dict([
           default=35.0),
     _spec("slip.filter_time_constant", "s", "first-order low pass of the slip speed "
           "('filtered Diff Omega'); 0 = unfiltered", minimum=0.0, maximum=100.0, default=0.02),
+    _spec("drivetrain.stiffness", "N m/rad", "torsional stiffness between the clutch and the "
+          "slip and torque measuring points (model/compliance.py); 0 = rigid, compliance off",
+          minimum=0.0, maximum=1e8, default=0.0),
+    _spec("drivetrain.damping", "N m s/rad", "torsional damping in parallel with "
+          "drivetrain.stiffness (unused while the stiffness is 0)", minimum=0.0, maximum=1e6,
+          default=0.0),
 ])
 
 
@@ -304,8 +312,24 @@ class ThermalParams:
         _validated(self, "thermal")
 
 
+@dataclass(frozen=True)
+class DrivetrainParams:
+    """Drivetrain compliance (keys ``drivetrain.*``), see :mod:`clutch_ros.model.compliance`."""
+
+    stiffness: float = 0.0  # [N m/rad]; 0: rigid (off)
+    damping: float = 0.0  # [N m s/rad]
+
+    def __post_init__(self) -> None:
+        _validated(self, "drivetrain")
+
+    @property
+    def enabled(self) -> bool:
+        """True when the compliance is on (stiffness > 0)."""
+        return self.stiffness > 0.0
+
+
 _GROUPS = {"pack": PackParams, "friction": FrictionParams, "spline": SplineParams,
-           "slip": SlipParams, "thermal": ThermalParams}
+           "slip": SlipParams, "thermal": ThermalParams, "drivetrain": DrivetrainParams}
 
 
 @dataclass(frozen=True)
@@ -324,6 +348,7 @@ class ClutchParams:
     spline: SplineParams
     slip: SlipParams = field(default_factory=SlipParams)
     thermal: ThermalParams = field(default_factory=ThermalParams)
+    drivetrain: DrivetrainParams = field(default_factory=DrivetrainParams)
 
     def __post_init__(self) -> None:
         fr = self.friction

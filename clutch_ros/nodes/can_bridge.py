@@ -9,8 +9,12 @@ it) and opens the bus; ``activate`` starts publishing ``rig_state`` and sending 
 plain node; a start-up failure then prints one line and exits 2. Services:
 ``~/change_state``, ``~/get_state`` (lifecycle_msgs).
 
-Receive: frames are read on a python-can Notifier thread from configure on (counted and
-decoded into the live sample, diagnosed), and published only while active. Each frame takes
+Receive: frames are read on a receive thread from configure on (counted and decoded into
+the live sample, diagnosed), and published only while active. The thread takes every frame
+queued at a wake-up as plain tuples (:meth:`~clutch_ros.canbus.ReconnectingBus.recv_batch`:
+on udp_multicast no python-can Message per frame) and decodes rig frames from tables
+compiled from the DBC (:mod:`clutch_ros.canbus.fastdecode`); foreign identifiers are counted
+and never decoded. Each frame takes
 one path: the assembler decodes it into the live sample, the pacer decides, the sample
 becomes ``rig_state`` stamped with the newest contributing frame's bus time: at once when
 the ``bridge.publish_on`` frame arrives (at most ``bridge.rate``), or on a ``bridge.rate``
@@ -69,6 +73,7 @@ from clutch_ros.canbus import (
     RigDatabase,
     RigStateAssembler,
 )
+from clutch_ros.canbus.batch import RawFrame, frame_message
 from clutch_ros.canbus.counters import PublishPacer
 from clutch_ros.canbus.signal_map import SignalMap
 from clutch_ros.errors import ClutchError
@@ -112,7 +117,8 @@ class CanBridgeNode(LifecycleNode):
         self._send_warn, self._lock, self._failure = LogThrottle(5.0), threading.Lock(), None
         self._sim_time = False  # use_sim_time, read at configure
         self._time_floor = 0.0  # [s] sim time: the newest command stamp (see _node_time)
-        self._command = self._rig_pub = self._cmd_pub = self._raw_pub = self._notifier = None
+        self._command = self._rig_pub = self._cmd_pub = self._raw_pub = self._rx = None
+        self._rx_stop = threading.Event()
         self._sub = self._pump_timer = self._flush_timer = None
         #: the bridge's components, counters and lifecycle state, read by its diagnostics
         self.state = BridgeState(CommandSources(self, cfg["pump.command_source"]))
@@ -150,7 +156,10 @@ class CanBridgeNode(LifecycleNode):
             else:
                 config = BusConfig.from_params(cfg)
                 st.bus = ReconnectingBus(config, on_event=self._on_link_event)
-                self._notifier = can.Notifier(st.bus, [self._on_frame], timeout=0.1)
+                self._rx_stop.clear()
+                self._rx = threading.Thread(target=self._receive, args=(st.bus,),
+                                            name="can_rx", daemon=True)
+                self._rx.start()
                 self.get_logger().info(f"CAN {config.describe()} open; decoding with {db.path}")
                 self._sub = self.create_subscription(PressureCommand, PRESSURE_COMMAND.name,
                                                      self._on_command, sensor_qos())
@@ -232,11 +241,12 @@ class CanBridgeNode(LifecycleNode):
 
     def _close_bus(self) -> None:
         st = self.state
-        if self._notifier is not None:
-            self._notifier.stop()
+        self._rx_stop.set()
+        if self._rx is not None:
+            self._rx.join(timeout=2.0)
         if st.bus is not None:
             st.bus.shutdown()
-        self._notifier = st.bus = st.source = None
+        self._rx = st.bus = st.source = None
 
     def close(self) -> None:
         """Send a last 0 bar request when active, stop the threads and close the bus."""
@@ -314,26 +324,43 @@ class CanBridgeNode(LifecycleNode):
             log.warning(f"CAN link {event.old} -> {event.new}: {event.reason}",
                         throttle_duration_sec=10.0)
 
-    def _on_frame(self, frame) -> None:
-        """Notifier thread: frame -> live sample -> (pacer) -> rig_state when active."""
+    def _receive(self, bus) -> None:
+        """Receive thread: batches of frames from ``bus`` into :meth:`_on_frame`."""
+        stop, on_frame = self._rx_stop, self._on_frame
+        while not stop.is_set():
+            try:
+                frames = bus.recv_batch(0.1)
+            except can.CanOperationError:  # shut down
+                return
+            except Exception as err:  # noqa: BLE001 - counted; the thread must live
+                if self.state.assembler is not None:
+                    self.state.assembler.on_error(err)
+                stop.wait(0.01)
+                continue
+            for frame in frames:
+                on_frame(frame)
+
+    def _on_frame(self, frame: RawFrame) -> None:
+        """Receive thread: frame -> live sample -> (pacer) -> rig_state when active."""
         st = self.state
         assembler, gate, pacer = st.assembler, st.gate, st.pacer
-        # the Notifier starts after configure made them, and stops before cleanup
+        # the thread starts after configure made them, and stops before cleanup
         assert assembler is not None and gate is not None and pacer is not None
         try:
             if self._sim_time:  # received at the node's (simulated) time, not the PC's
-                frame.timestamp = self._node_time()
-            key = assembler.feed(frame)
+                frame = (self._node_time(), *frame[1:])
+            key = assembler.feed_frame(*frame)
             if not st.active:
                 return
             if self._raw_pub is not None:
-                self._raw_pub.publish(can_frame_to_ros(frame, st.offset or 0.0))
+                self._raw_pub.publish(can_frame_to_ros(frame_message(frame), st.offset or 0.0))
             if key is None:
                 return
             if key == gate.codec.spec.key:  # ours never come back (echoes removed)
                 st.foreign_pump_requests += 1
-            self._publish_latest(pacer.on_frame, key, bus_time=True)
-        except Exception as err:  # noqa: BLE001 - counted; the Notifier thread must live
+            if key == pacer.trigger or key in pacer.fallback:  # no other frame publishes
+                self._publish_latest(pacer.on_frame, key, bus_time=True)
+        except Exception as err:  # noqa: BLE001 - counted; the receive thread must live
             assembler.on_error(err)
 
     def _replay(self) -> None:
@@ -363,7 +390,7 @@ class CanBridgeNode(LifecycleNode):
         the timer. A bridge that falls behind (a busy PC) and then reads a backlog of frames
         in a burst therefore still publishes one sample per trigger frame, each with its
         trigger's stamp; paced by its own clock it held most of them back as "too fast".
-        Runs on the Notifier thread (frames) and the executor (timer), hence the lock.
+        Runs on the receive thread (frames) and the executor (timer), hence the lock.
         """
         st = self.state
         assembler, pacer = st.assembler, st.pacer

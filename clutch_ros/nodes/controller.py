@@ -88,9 +88,16 @@ class ControllerNode(Node):
         # reliable and best-effort publishers alike.
         self.create_subscription(TorqueRequest, TORQUE_REQUEST.name, self._on_request,
                                  subscriber_qos(TORQUE_REQUEST.name, depth=5))
-        self.create_subscription(RigState, RIG_STATE.name, self._on_rig, sensor_qos())
+        # raw: only the arrival of rig_state counts here; not deserialising it saves the
+        # message construction (~30 fields) on every sample
+        self.create_subscription(RigState, RIG_STATE.name, self._on_rig, sensor_qos(), raw=True)
         self.create_subscription(ClutchEstimate, CLUTCH_ESTIMATE.name, self._on_estimate,
                                  sensor_qos())
+        # one PressureCommand, refilled per tick (publish serialises it before it returns)
+        self._cmd = PressureCommand()
+        # the node clock's C handle: node time (ROS time, /clock with use_sim_time) without a
+        # rclpy Time object per call
+        self._clock_handle = self.get_clock().handle
         self._timer = self.create_timer(self._ctl.settings.period, self._tick)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
@@ -134,7 +141,7 @@ class ControllerNode(Node):
         return SetParametersResult(successful=True)
 
     def _now(self) -> float:
-        return self.get_clock().now().nanoseconds * 1e-9
+        return self._clock_handle.get_now().nanoseconds * 1e-9
 
     def _on_request(self, msg) -> None:
         now = self._now()
@@ -173,8 +180,9 @@ class ControllerNode(Node):
             out = self._ctl.update(est.lamella_temperature, est.slip_speed_filtered,
                                    est.spline_correction, est.measured_torque,
                                    est.modelled_torque, scale)
-        msg = PressureCommand()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg = self._cmd
+        stamp = msg.header.stamp  # as Time.to_msg(): seconds and nanoseconds of the node clock
+        stamp.sec, stamp.nanosec = divmod(self._clock_handle.get_now().nanoseconds, 10**9)
         msg.pressure = float(out.pressure)
         msg.requested_torque = float(out.requested_torque)
         msg.predicted_torque = float(out.predicted_torque)

@@ -64,6 +64,13 @@ PARAMS = [
               "(its upper confidence bound, in standard deviations): an unlearned mu is "
               "approached from below and the trim closes the gap; 0 = the estimate s; taken "
               "at the next change of the request", "1", 0.0, 5.0),
+    ParamSpec("controller.uncertainty_range", _C.uncertainty_range, "the start: no friction "
+              "scale within s +- range x friction_scale_std (the prior's before anything is "
+              "learned) may overshoot by more than overshoot_margin: the scale inverted is at "
+              "least (s + range x std) / (1 + overshoot_margin) and the trim reaches the whole "
+              "range; 0 = off", "1", 0.0, 5.0),
+    ParamSpec("controller.start_trim_delay", _C.start_trim_delay, "trim_delay of a step taken "
+              "with the start's caution (uncertainty_range)", "s", 0.0, 10.0),
     ParamSpec("controller.request_timeout", 0.5, "a torque request older than this is stale "
               "-> 0 Pa", "s", 0.001, 3600.0),
     ParamSpec("controller.rig_timeout", RIG_TIMEOUT, "rig_state older than this is stale -> 0 Pa",
@@ -94,4 +101,6 @@ def controller_settings(cfg: dict) -> ControllerSettings:
         trim_rate=cfg["controller.trim_rate"], trim_limit=cfg["controller.trim_limit"],
         trim_delay=cfg["controller.trim_delay"], trim_hold=cfg["controller.trim_hold"],
         trim_settle_time=cfg["controller.trim_settle_time"],
-        uncertainty_margin=cfg["controller.uncertainty_margin"])
+        uncertainty_margin=cfg["controller.uncertainty_margin"],
+        uncertainty_range=cfg["controller.uncertainty_range"],
+        start_trim_delay=cfg["controller.start_trim_delay"])

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from array import array
 
 import numpy as np
@@ -28,7 +29,7 @@ def _compile_scalar_filler():
     convert = {"float64": "float", "bool": "bool", "string": "str"}
     lines = ["def fill(msg, est, status):"]
     for f in ESTIMATE_FIELDS:
-        if f.kind == "float64[]":
+        if f.kind == "float64[]" or f.source == "uncertainty":  # set by the node itself
             continue
         # identifiers of the constant table only, never data
         assert f.name.isidentifier() and f.attr.isidentifier(), f
@@ -71,11 +72,12 @@ class EstimateMessage:
             self._views[name] = np.frombuffer(getattr(self.msg, name), dtype=np.float64)
         self._lamellas = n
 
-    def fill(self, est, status, header):
+    def fill(self, est, status, header, torque_std=math.nan):
         """Fill the message from a model ``Estimate`` and ``AdaptationStatus``; return it.
 
         ``header`` (the input RigState's) is referenced, not copied: the estimate carries the
-        stamp of the sample it was computed from.
+        stamp of the sample it was computed from. ``torque_std``: ``modelled_torque_std``
+        [N m] (:class:`clutch_ros.model.uncertainty.TorqueStd`).
         """
         msg = self.msg
         n = len(est.lamella_normal_force)
@@ -86,6 +88,7 @@ class EstimateMessage:
             views[name][:] = getattr(est, attr)
         msg.header = header
         _fill_scalars(msg, est, status)
+        msg.modelled_torque_std = float(torque_std)
         return msg
 
 

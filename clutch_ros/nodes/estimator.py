@@ -39,6 +39,7 @@ from clutch_ros.config.presets import default_preset
 from clutch_ros.errors import ClutchError
 from clutch_ros.model import SampleRejected
 from clutch_ros.model.adaptation import AdaptiveEstimator
+from clutch_ros.model.uncertainty import TorqueStd
 from clutch_ros.nodes.adapt_params import ADAPT_PARAMS, adapt_settings
 from clutch_ros.nodes.convert import EstimateMessage
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
@@ -53,6 +54,7 @@ from clutch_ros.nodes.peers import Input, PeerWatch
 from clutch_ros.nodes.qos import publisher_qos, subscriber_qos
 from clutch_ros.nodes.runner import run_node
 from clutch_ros.nodes.stamps import stamp_to_sec
+from clutch_ros.nodes.uncertainty_params import UNCERTAINTY_PARAMS, error_model
 from clutch_ros.offline.adapt import save_adapted_params
 
 NAME = "estimator"
@@ -85,6 +87,8 @@ class EstimatorNode(Node):
         self._cfg = declare_params(self, PARAMS)
         self._params = declare_model_params(self, default_preset("flexiforce_8"))
         self._cfg.update(declare_params(self, ADAPT_PARAMS))
+        self._cfg.update(declare_params(self, UNCERTAINTY_PARAMS))
+        self._torque_std = TorqueStd(error_model(self._cfg))
         self._estimator = AdaptiveEstimator(self._params, adapt_settings(self._cfg),
                                             max_gap_s=self._cfg["estimator.max_gap"])
         self._saved = ""
@@ -165,11 +169,12 @@ class EstimatorNode(Node):
             self._skip("non_finite_output", "model produced a non-finite torque")
             return
         self._accepted += 1
+        std = self._torque_std.update(stamp, est.modelled_torque, est.slip_speed_filtered)
         if self._until_publish:  # decimated (estimator.publish_every): not this one
             self._until_publish -= 1
             return
         self._until_publish = self._cfg["estimator.publish_every"] - 1
-        self._pub.publish(self._out.fill(est, res.adaptation, msg.header))
+        self._pub.publish(self._out.fill(est, res.adaptation, msg.header, std))
         self._published += 1
 
     def _skip(self, kind: str, why: str, count: int = 1) -> None:

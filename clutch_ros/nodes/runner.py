@@ -119,7 +119,8 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     """Answer --help, or init rclpy, build the node with ``factory`` and spin until shutdown.
 
     Bad settings (a ClutchError or rclpy ParameterException while building the node) print
-    one line ``<name>: error: ...`` and return 2, never a traceback.
+    one line ``<name>: error: ...`` and return 2, never a traceback (0 when a signal stopped
+    the start meanwhile: the error is then the stop's consequence).
     """
     argv = list(sys.argv[1:] if args is None else args)
     if help_requested(argv):
@@ -163,6 +164,10 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
         if rclpy.ok():
             raise
     except (ClutchError, ParameterException, ValueError) as err:
+        if not rclpy.ok():
+            # a signal shut the context down while the node was being built (a lifecycle
+            # node's autostart then fails to publish): the requested stop, not bad settings
+            return 0
         if started:  # an error after start-up is a bug: show it
             raise
         sys.stderr.write(f"{name}: error: {err}\n")

@@ -11,6 +11,11 @@ never the printed, non-passive Eqs. 29-30) on the fit runs, replays each fitted 
 validation run at full rate (:func:`~clutch_ros.model.identification.evaluate`) and reports
 the RMSE ratio model / Eq. 1 (same friction law) per law and run. The best law is the one
 with the lowest mean ratio over the validation runs (over the fit runs when none are given).
+
+Drivetrain compliance (:mod:`~clutch_ros.model.compliance`): ``compliance=True`` fits
+``drivetrain.stiffness`` and ``drivetrain.damping`` too (:data:`COMPLIANCE_KEYS`), starting
+from :data:`COMPLIANCE_START` when the base has the compliance off; otherwise they stay at the
+base's values (fixed).
 """
 
 from __future__ import annotations
@@ -24,11 +29,17 @@ from clutch_ros.model.fit_data import IdentificationError
 from clutch_ros.model.identification import FREE_PARAMETERS, FitOptions, FitResult, evaluate, fit
 from clutch_ros.model.params import PASSIVE_LAWS, ClutchParams
 
-__all__ = ["FILM_KEYS", "film_shown", "free_keys", "film_start", "LawScore", "AutoFitResult",
+__all__ = ["COMPLIANCE_KEYS", "COMPLIANCE_START", "compliance_start", "FILM_KEYS",
+           "film_shown", "free_keys", "film_start", "LawScore", "AutoFitResult",
            "score_law", "fit_auto"]
 
 #: oil-film keys fitted when the data shows a pressure-before-delta onset
 FILM_KEYS = ("friction.film_depth", "friction.film_recovery_time")
+#: drivetrain keys fitted with ``compliance=True`` (``clutch fit --fit-compliance``)
+COMPLIANCE_KEYS = ("drivetrain.stiffness", "drivetrain.damping")
+#: their start values when the base has them at 0: soft (500 N m/rad, 10 N m s/rad, c/k 20 ms),
+#: so that the clutch sticks at the start point and both keys act on the torque
+COMPLIANCE_START = {"drivetrain.stiffness": 500.0, "drivetrain.damping": 10.0}
 
 
 def film_shown(runs, *, min_standstill: float = 0.3, standstill_speed: float = 0.05,
@@ -61,12 +72,24 @@ def film_shown(runs, *, min_standstill: float = 0.3, standstill_speed: float = 0
     return False
 
 
-def free_keys(law: str, runs, fixed: Sequence[str] = ()) -> list[str]:
-    """Return the keys to fit for ``law``: its free parameters, plus the film if shown."""
+def free_keys(law: str, runs, fixed: Sequence[str] = (), *,
+              compliance: bool = False) -> list[str]:
+    """Return the keys to fit for ``law``: its free parameters, plus the film if shown.
+
+    ``compliance``: the drivetrain stiffness and damping too.
+    """
     keys = list(FREE_PARAMETERS[law])
     if film_shown(runs):
         keys += list(FILM_KEYS)
+    if compliance:
+        keys += list(COMPLIANCE_KEYS)
     return [k for k in keys if k not in fixed]
+
+
+def compliance_start(base: ClutchParams, keys) -> dict:
+    """Start values for the drivetrain keys being fitted that are 0 in ``base``."""
+    flat = base.to_flat()
+    return {k: v for k, v in COMPLIANCE_START.items() if k in keys and not flat[k] > 0.0}
 
 
 def film_start(base: ClutchParams, keys) -> dict:
@@ -141,15 +164,17 @@ def score_law(law: str, result: FitResult, runs) -> LawScore:
 
 
 def fit_auto(runs, validation_runs, base: ClutchParams, *, laws: Sequence[str] = PASSIVE_LAWS,
-             fixed: Sequence[str] = (), options: FitOptions | None = None) -> AutoFitResult:
+             fixed: Sequence[str] = (), options: FitOptions | None = None,
+             compliance: bool = False) -> AutoFitResult:
     """Fit each law on ``runs``, score it on ``validation_runs`` (module docstring)."""
     targets = list(validation_runs) or list(runs)
     scores = []
     for law in laws:
-        keys = free_keys(law, runs, fixed)
+        keys = free_keys(law, runs, fixed, compliance=compliance)
         try:
             result = fit(runs, law, base, fixed=fixed, free=keys,
-                         start=film_start(base, keys), options=options)
+                         start={**film_start(base, keys), **compliance_start(base, keys)},
+                         options=options)
         except IdentificationError as err:
             scores.append(LawScore(law, None, error=str(err)))
             continue

@@ -41,6 +41,14 @@ from clutch_ros.bag.typestore import CLUTCH_ESTIMATE_TYPE, Typestore
 from clutch_ros.bag.writer import BagWriter
 from clutch_ros.model import accuracy_summary, estimate_batch
 from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimator
+from clutch_ros.model.uncertainty import (
+    DEFAULTS,
+    ErrorModel,
+    coverage,
+    fit_error_model,
+    phases,
+    torque_std,
+)
 from clutch_ros.offline.streaming import StreamedEstimate, spare_core
 
 __all__ = [
@@ -48,9 +56,11 @@ __all__ = [
     "ReplayJob",
     "ReplayResult",
     "estimate_layout",
+    "fit_error_model_on_bags",
     "published_rows",
     "replay_bag",
     "stamps_s",
+    "uncertainty_summary",
     "write_estimates",
 ]
 
@@ -74,6 +84,8 @@ class ReplayResult:
             ``read_s`` includes the overlapped part of the estimate and ``estimate_s`` is
             what was left after the read), ``streamed_pieces`` (how many pieces).
         params: the model parameters it ran with (None when not known).
+        torque_std: ``modelled_torque_std`` [N m] per input sample, as the node computes it
+            (:func:`clutch_ros.model.uncertainty.torque_std`; None when not computed).
 
     """
 
@@ -82,6 +94,7 @@ class ReplayResult:
     batch: Any
     summary: dict[str, Any] = field(default_factory=dict)
     params: Any = None
+    torque_std: Any = None
 
 
 def stamps_s(rig: RigStateArrays) -> np.ndarray:
@@ -103,8 +116,13 @@ def replay_bag(
     fields: Any = None,
     per_lamella: bool = True,
     pipeline: bool | None = None,
+    error_model: ErrorModel | None = None,
 ) -> ReplayResult:
     """Run the estimator with ``params`` over the RigState stream of ``bag``.
+
+    ``error_model``: the torque uncertainty model (default
+    :data:`~clutch_ros.model.uncertainty.DEFAULTS`); the summary gains its 95 % band
+    coverage (:func:`uncertainty_summary`).
 
     ``fields``: the RigState fields read into ``result.rig`` (default every field;
     :data:`~clutch_ros.bag.rig_states.REPLAY_FIELDS` is what the estimate needs, a smaller
@@ -152,7 +170,30 @@ def replay_bag(
         read_s=read_s,
         estimate_s=estimate_s,
     )
-    return ReplayResult(path, rig, batch, summary, params)
+    std = torque_std(error_model or DEFAULTS, stamps_s(rig), batch.modelled_torque,
+                     batch.slip_speed_filtered)
+    summary.update(uncertainty_summary(rig, batch, std))
+    return ReplayResult(path, rig, batch, summary, params, std)
+
+
+def uncertainty_summary(rig: RigStateArrays, batch: Any, std: np.ndarray) -> dict[str, Any]:
+    """Return the coverage of the 95 % band ``modelled_torque +- 1.96 std`` of one bag.
+
+    Over the :func:`published_rows` with a measured torque: ``coverage_95`` (all),
+    ``coverage_95_transient`` and ``coverage_95_steady`` (the phases of
+    :func:`clutch_ros.model.uncertainty.phases`: transient within 1 s after the actuating
+    pressure moved faster than 20 % of the bag's range per second (over 0.1 s) or the slip
+    reversed beyond +-0.3 rad/s; steady otherwise; NaN for a phase without samples), the
+    sample counts, and ``torque_std_mean_nm`` [N m].
+    """
+    rows = published_rows(batch)
+    t = stamps_s(rig)
+    transient = phases(t, batch.actuating_pressure, batch.slip_speed_filtered)
+    out = coverage(np.where(rows, batch.measured_torque, np.nan), batch.modelled_torque, std,
+                   transient)
+    finite = rows & np.isfinite(std)
+    out["torque_std_mean_nm"] = float(np.mean(std[finite])) if finite.any() else float("nan")
+    return out
 
 
 @dataclass(frozen=True)
@@ -161,7 +202,8 @@ class ReplayJob:
 
     Called with ``(bag, out)``: replays ``bag`` with ``params``, writes the estimates to
     ``out`` (unless None, with ``storage``; ``topic``: the RigState topic, default the bag's
-    only one; ``pipeline``: as :func:`replay_bag`, False in pool and cluster workers) and
+    only one; ``pipeline``: as :func:`replay_bag`, False in pool and cluster workers;
+    ``error_model``: the torque uncertainty model, as :func:`replay_bag`) and
     returns ``(summary, result)``: the summary
     gains ``seconds`` (wall time of this bag [s]), ``samples_per_s`` and, when written,
     ``estimates_written`` and ``output``; ``result`` is the whole :class:`ReplayResult` when
@@ -173,6 +215,7 @@ class ReplayJob:
     keep_result: bool = False
     topic: str | None = None
     pipeline: bool | None = None
+    error_model: Any = None
 
     def __call__(self, item: tuple[Path, Path | None]) -> tuple[dict[str, Any], Any]:
         """Replay one ``(bag, out)`` pair."""
@@ -182,7 +225,7 @@ class ReplayJob:
         fields = None if self.keep_result else REPLAY_FIELDS
         result = replay_bag(bag, self.params, topic=self.topic, fields=fields,
                             per_lamella=self.keep_result or out is not None,
-                            pipeline=self.pipeline)
+                            pipeline=self.pipeline, error_model=self.error_model)
         summary = result.summary
         seconds = time.perf_counter() - start
         summary.update(seconds=seconds, samples_per_s=summary["samples"] / max(seconds, 1e-9))
@@ -247,6 +290,9 @@ def estimate_layout(
         spline_friction_force=np.zeros(n_lamellas),
     )
     columns = {name: getattr(batch, name)[rows] for name in ESTIMATE_FIELDS}
+    std = result.torque_std
+    columns["modelled_torque_std"] = (np.full(rows.size, np.nan) if std is None
+                                      else np.asarray(std, dtype=float)[rows])
     columns.update({name: np.full(rows.size, value)
                     for name, value in _adaptation_off(result).items()})
     stamps = np.asarray(result.rig.stamp_ns, dtype=np.int64)[rows]
@@ -281,3 +327,27 @@ def _first_frame_id(result: ReplayResult) -> str:
         for message in reader.messages(rig.topic, start_ns=first):
             return str(message.msg.header.frame_id)
     return ""
+
+
+def fit_error_model_on_bags(bags: Any, params: Any, base: ErrorModel = DEFAULTS) -> ErrorModel:
+    """Identify the torque error model on the residuals of ``params`` over ``bags``.
+
+    Each bag is replayed as ``clutch replay`` does; the runs are joined (the rate filter
+    restarts at each bag's first sample, its time step being negative or beyond
+    ``max_gap``) and :func:`clutch_ros.model.uncertainty.fit_error_model` fits them.
+    """
+    parts: list[tuple[np.ndarray, ...]] = []
+    for bag in bags:
+        result = replay_bag(bag, params, fields=REPLAY_FIELDS, per_lamella=False,
+                            pipeline=False)
+        b = result.batch
+        rows = published_rows(b)
+        parts.append((stamps_s(result.rig), np.where(rows, b.modelled_torque, np.nan),
+                      b.measured_torque, b.slip_speed_filtered))
+    t, modelled, measured, slip = (np.concatenate(c) for c in zip(*parts))
+    if len(parts) > 1:  # a later bag may start after the last: force the restart
+        starts = np.cumsum([len(p[0]) for p in parts])[:-1]
+        t = t.copy()
+        for i in starts:
+            t[i:] += t[i - 1] - t[i] + 2 * base.max_gap
+    return fit_error_model(t, modelled, measured, slip, base)

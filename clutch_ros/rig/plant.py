@@ -17,6 +17,14 @@ still (0 rad/s), so ω_diff = input speed. Per step of ``dt`` [s]:
    (N-th) and rear (1st) lamella forces into eight voltages [V];
 6. Gaussian sensor noise (:class:`NoiseParams`) is added to the measured signals.
 
+Drivetrain compliance (the truth file's ``drivetrain.stiffness`` > 0, e.g. the ``rig_test_a``
+preset; :mod:`clutch_ros.model.compliance`): the shafts between the clutch and the motor's
+speed sensor and torque flange twist. The motor speed is then the measured slip ω_m, the
+clutch slips at its own ω_c (0 while it sticks), which its pack, the heating and the
+FlexiForce sensors see, and the flange measures the torque the compliance carries: after a
+pressure step at low ω_m the torque builds up at k ω_m (the Test A delay, thesis 3.1). With
+the stiffness 0 (every other preset) nothing of this runs.
+
 :class:`RigSignals` holds every RigState signal in SI units plus the noise-free truth. One
 seed (or numpy Generator) reproduces a run: it is split into independent streams for the
 FlexiForce sensors (gains, shares, noise) and the other sensors' noise.
@@ -33,6 +41,7 @@ import numpy as np
 from clutch_ros.config.params_file import load_flat, load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model import ClutchParams, PackModel
+from clutch_ros.model.compliance import Drivetrain, capacity_scalar
 from clutch_ros.rig.errors import RigConfigError, check_non_negative
 from clutch_ros.rig.flexiforce import FlexiForceArray, FlexiForceParams
 from clutch_ros.rig.pump import PumpModel, PumpParams
@@ -211,6 +220,7 @@ class RigPlant:
         self.params = params or RigPlantParams()
         ff_rng, self._noise_rng = _split_rng(seed)
         self.pack = PackModel(self.truth)
+        self.drive = Drivetrain(self.truth) if self.truth.drivetrain.enabled else None
         self.pump = PumpModel(self.params.pump)
         self.thermal = ThermalModel(self.params.thermal)
         self.flexiforce = FlexiForceArray(self.params.flexiforce, ff_rng)
@@ -247,6 +257,8 @@ class RigPlant:
         self.pack.reset(actuating_pressure=self.pump.pressure,
                         lamella_temperature=self.thermal.lamella_temperature)
         self._slip = 0.0
+        if self.drive is not None:
+            self.drive.reset(0.0, 0.0)  # stuck, nothing carried
 
     @property
     def slip_speed(self) -> float:
@@ -284,8 +296,17 @@ class RigPlant:
         self._slip = command if tau == 0.0 else (
             command + (self._slip - command) * math.exp(-dt / tau))
         slip = self._slip
-        sample = self.pack.step(dt, pressure, slip, self.thermal.lamella_temperature)
-        torque = float(sample.torque)
+        drive = self.drive
+        if drive is None:
+            sample = self.pack.step(dt, pressure, slip, self.thermal.lamella_temperature)
+            torque = float(sample.torque)
+        else:  # the clutch sees its own slip; the flange the torque the compliance carries
+            sample = self.pack.step(dt, pressure, drive.clutch_slip,
+                                    self.thermal.lamella_temperature)
+            t_kin, t_static = capacity_scalar(self.truth, sample.mu, sample.compression,
+                                              sample.lamella_temperature)
+            torque = drive.step(dt, slip, t_kin, t_static)
+            slip = drive.clutch_slip
         lamella, oil = self.thermal.step(dt, abs(torque * slip))
         normal = np.asarray(sample.normal_force, dtype=float)
         front, rear = float(normal[-1]), float(normal[0])
@@ -293,7 +314,7 @@ class RigPlant:
         self._steps += 1
         self.time = self._steps * dt
         e = self._next_noise()
-        input_speed = slip + e[3]
+        input_speed = self._slip + e[3]
         ratio = prm.axle_ratio
         wheels = (np.array([input_speed, input_speed, 0.0, 0.0]) / ratio if ratio > 0.0
                   else np.zeros(0))

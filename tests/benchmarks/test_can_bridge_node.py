@@ -18,3 +18,32 @@ def test_node_bench_smoke(tmp_path, capsys, ros_env):
         assert r.steps[0].lossless, r.steps  # 1,000 frames/s: far below either limit
         assert r.latency_samples > 100
         assert 0.0 <= r.latency_median_ms <= r.latency_p99_ms
+
+
+def test_rig_pattern_is_the_simulated_rigs_frames():
+    from benchmarks.can_bridge_sustained import rig_pattern
+
+    pattern = rig_pattern()
+    assert len(pattern) == 800 and all(len(tick) >= 2 for tick in pattern)  # RigFast, RigSpeed
+    assert sum(map(len, pattern)) == 800 * 2 + 80 * 5 + 8  # 1 kHz x2, 100 Hz x5, 10 Hz
+
+
+def test_sustained_mode_accounts_for_every_frame(tmp_path, capsys, ros_env):
+    from benchmarks.can_bridge_sustained import print_table, run_sustained
+
+    result = run_sustained(rate=3000.0, seconds=2.0, log_dir=tmp_path)
+    sent = result["sender"]
+    # 2 s of the rig: RigFast + RigSpeed 2,000 each, five 100 Hz frames, RigTemperatures 20
+    assert sent["sent"] == 6000 and sent["failed"] == 0 and sent["rig"] == 5020
+    for name in ("bridge", "bare"):
+        r = result[name]
+        assert r["received"] + r["kernel_drops"] == sent["sent"], (name, r)
+        assert r["cores_per_send_second"] > 0.0
+    b = result["bridge"]
+    assert b["decoded"] + b["unknown"] + b["decode_errors"] == b["received"]
+    assert b["malformed"] == b["decode_errors"] == b["listener_errors"] == 0
+    if b["kernel_drops"] == 0:  # (a stalled machine may make the kernel drop some)
+        assert (b["decoded"], b["unknown"]) == (sent["rig"], sent["foreign"])
+    assert result["latency"]["samples"] > 50
+    print_table(result)
+    assert "can_bridge node" in capsys.readouterr().out

@@ -19,7 +19,8 @@ from clutch_ros.cli import fit as fit_cmd
 from clutch_ros.config.params_file import load_flat, load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model.params import PARAMETER_SPECS, ClutchParams
-from clutch_ros.rig import RigPlant, run_offline, table3_run
+from clutch_ros.model.uncertainty import DEFAULTS, ErrorModel
+from clutch_ros.rig import RigPlant, run_offline, table3_run, table4_run
 
 START_NS = 1_700_000_000 * 1_000_000_000
 
@@ -98,6 +99,10 @@ def test_fit_writes_a_parameter_file_the_nodes_accept(bags, tmp_path, capsys):
         assert flat[key] == pytest.approx(value)
     text = out_file.read_text()
     assert text.startswith("# clutch fit --law coulomb") and "ros__parameters" in text
+    # the torque error model identified on the fit bags, written beside the parameters
+    model = ErrorModel.from_flat(flat)
+    assert model != DEFAULTS and model.to_flat() == pytest.approx(doc["uncertainty"])
+    assert model.base > 0.0
 
 
 def test_fit_prints_values_with_standard_errors(bags, tmp_path, capsys):
@@ -240,3 +245,62 @@ def test_validation_report_views(bags, tmp_path, capsys):
         assert all(0.0 <= v <= 1.0 for v in summary["xcorr_outside"][seq].values())
     assert math.isfinite(summary["rmse"]["seq3"]["ff_t"]["model"])
     assert np.isfinite(models["ff_t"][0].measured_pdiff).all()
+
+
+def _hogs(count):
+    """Start ``count`` busy-looping processes (a loaded machine); the caller stops them."""
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
+
+
+def test_the_same_fit_twice_writes_identical_files_even_under_load(bags, tmp_path, capsys):
+    """An evaluation budget, not a wall-time limit: the load cannot change the result."""
+    argv = [bags["inc_step"], "--law", "ff_t", "--no-pdiff", "--max-evaluations", "12"]
+    quiet, loaded = tmp_path / "quiet.yaml", tmp_path / "loaded.yaml"
+    rc, out, err = _run(fit_cmd, [*argv, "-o", quiet, "--json"], capsys)
+    assert rc == 0, err
+    assert json.loads(out)["evaluations"] >= 1
+    hogs = _hogs(2)
+    try:
+        rc, _, err = _run(fit_cmd, [*argv, "-o", loaded], capsys)
+    finally:
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
+    assert rc == 0, err
+    assert quiet.read_bytes() == loaded.read_bytes()
+    _one_error_line(*_run(fit_cmd, [*argv, "--max-evaluations", "0", "-o", tmp_path / "x"],
+                          capsys), "--max-evaluations must be >= 1")
+
+
+@pytest.fixture(scope="module")
+def elastic_bag(tmp_path_factory):
+    """Write the Test A rig's PBD run (13 lamellas, soft shafts: 1900 N m/rad)."""
+    root = tmp_path_factory.mktemp("elastic")
+    data = run_offline(RigPlant.from_file("rig_test_a", seed=4), table4_run(1))
+    return _write(root / "pbd_test_a", data, voltages=False)
+
+
+def test_fit_identifies_the_drivetrain_compliance(elastic_bag, tmp_path, capsys):
+    """Standstill under pressure and the slip reversals (a stuck clutch) show the shafts."""
+    out_file = tmp_path / "elastic.yaml"
+    common = ["--law", "coulomb", "--base", "test_a", "--fix", "friction.temperature_slope",
+              "--json"]
+    rc, out, err = _run(fit_cmd, [elastic_bag, *common, "--fit-compliance", "-o", out_file],
+                        capsys)
+    assert rc == 0, err
+    doc = json.loads(out)
+    assert {"drivetrain.stiffness", "drivetrain.damping"} <= set(doc["values"])
+    truth = load_params(preset_path("rig_test_a")).drivetrain
+    assert doc["values"]["drivetrain.stiffness"] == pytest.approx(truth.stiffness, rel=0.1)
+    assert load_params(out_file).drivetrain.stiffness == pytest.approx(
+        doc["values"]["drivetrain.stiffness"])
+    # without the flag the compliance stays at the base's (off); the standstill samples are
+    # then left out, and with them the pressure span the pack keys need
+    rigid_file = tmp_path / "rigid.yaml"
+    fix = ["--fix", "friction.pressure_loss_at_ref", "--fix", "spline.friction_coefficient",
+           "--fix", "clutch.lamella_damping", "--fix", "friction.film_depth", "--fix",
+           "friction.film_recovery_time"]
+    rc, out, err = _run(fit_cmd, [elastic_bag, *common, *fix, "-o", rigid_file], capsys)
+    assert rc == 0, err
+    assert "drivetrain.stiffness" not in json.loads(out)["values"]
+    assert load_params(rigid_file).drivetrain.stiffness == 0.0

@@ -92,6 +92,29 @@ def test_json_summary_fields(run_bag, capsys):
     assert r["reference_rmse_nm"] == pytest.approx(np.sqrt(np.mean((meas - ref)[ok] ** 2)),
                                                    rel=1e-9)  # fmt: skip
     assert r["reference_rmse_nm"] > r["rmse_nm"] > 0.0
+    # the 95 % band of modelled_torque_std (default error model), overall and per phase
+    assert r["coverage_samples"] == int(ok.sum())
+    assert 0 < r["coverage_transient_samples"] < r["coverage_samples"]
+    for key in ("coverage_95", "coverage_95_transient", "coverage_95_steady"):
+        assert 0.0 <= r[key] <= 1.0, key
+    assert r["torque_std_mean_nm"] > 0.0
+
+
+def test_json_coverage_uses_the_error_model_of_the_parameter_file(run_bag, capsys, tmp_path):
+    """A wider error model in the parameter file covers more; a narrow one less."""
+    from clutch_ros.config.params_file import write_params
+    from clutch_ros.model.uncertainty import ErrorModel
+
+    bag, _ = run_bag
+    params = load_params(preset_path("flexiforce_8"))
+    cover = []
+    for base in (1e-3, 1e4):
+        path = write_params(params, tmp_path / f"p{base}.yaml",
+                            extra=ErrorModel(base=base, rel=0.0, rate_time=0.0).to_flat())
+        (r,) = replay(capsys, bag, "--params", path)
+        cover.append(r["coverage_95"])
+        assert r["torque_std_mean_nm"] == pytest.approx(base)
+    assert cover[0] < 0.5 and cover[1] == 1.0
 
 
 @pytest.mark.parametrize("storage", ["mcap", "sqlite3"])

@@ -47,13 +47,21 @@ def test_layout_plots_only_fields_that_exist():
             topic, field = path["value"].split(".", 1)
             seen.add(topic)
             if topic.startswith("/studio_script/"):
-                assert topic.endswith("accuracy_band") and field in ("upper", "lower")
+                assert topic.rsplit("/", 1)[1] in layout["userNodes"], path["value"]
+                assert topic.endswith(("accuracy_band", "torque_band")), path["value"]
+                assert field in ("upper", "lower"), path["value"]
                 continue
             fields = dict(store.fielddefs[types[topic]][1])
             assert re.sub(r"\[\d+\]$", "", field) in fields, (panel, path["value"])
     assert {"/clutch_estimate", "/rig_state", "/torque_request", "/pressure_command",
             "/pump_request"} <= seen
     assert any(p.startswith("DiagnosticSummary") for p in layout["configById"])
+    # the torque plot's 95 % band: modelled_torque +- 1.96 modelled_torque_std
+    band = layout["userNodes"]["torque_band"]["sourceCode"]
+    assert "1.96 * event.message.modelled_torque_std" in band
+    assert '"/studio_script/torque_band"' in band
+    torque = [p["value"] for p in layout["configById"]["Plot!torque"]["paths"]]
+    assert {"/studio_script/torque_band.upper", "/studio_script/torque_band.lower"} <= set(torque)
 
 
 def test_busy_port_is_a_clear_error():

@@ -139,6 +139,9 @@ def test_pressure_never_outside_the_limits(flexiforce, rows):
 # --- caution while the friction scale is unlearned (uncertainty_margin) --------------------
 
 FAST = {"rise_rate_limit": 1e9, "fall_rate_limit": 1e9}
+# uncertainty_margin on its own: the start's range (uncertainty_range, test_control_start.py)
+# would otherwise set the caution at the prior's σ
+MARGIN = {"uncertainty_range": 0.0, **FAST}
 
 
 def _exact(params, c, request):
@@ -153,7 +156,7 @@ def test_unlearned_mu_is_approached_from_below(flexiforce):
     Torque is proportional to μ, so the inverse at s + 0.5 σ = 1.1 gives 1.06 / 1.1 of the
     request; the best estimate (margin 0) gives 1.06 of it: the first-step overshoot.
     """
-    s = ControllerSettings(uncertainty_margin=0.5, **FAST)
+    s = ControllerSettings(uncertainty_margin=0.5, **MARGIN)
     request, c = 600.0, 1.06
     ctl, outs = _static_loop(flexiforce, s, request, c, std=0.2, idle=5)
     delay = round(s.trim_delay / s.period)
@@ -176,7 +179,7 @@ def test_caution_keeps_the_trims_reach(flexiforce, c):
     Every plant the trim reaches without caution (|1/c - 1| <= trim_limit) it still reaches
     with it, to the exact pressure.
     """
-    s = ControllerSettings(uncertainty_margin=0.5, **FAST)
+    s = ControllerSettings(uncertainty_margin=0.5, **MARGIN)
     ctl, _ = _static_loop(flexiforce, s, 600.0, c, std=0.2, ticks=600, idle=5)
     assert_allclose(ctl.pressure, _exact(flexiforce, c, 600.0), rtol=1e-6)
     assert_allclose(1.0 + ctl.trim, 1.1 / c, rtol=1e-5)
@@ -184,18 +187,18 @@ def test_caution_keeps_the_trims_reach(flexiforce, c):
 
 def test_no_caution_without_a_measurement(flexiforce):
     """Nothing would close the gap: the best estimate is inverted, no margin."""
-    s = ControllerSettings(uncertainty_margin=0.5, **FAST)
+    s = ControllerSettings(uncertainty_margin=0.5, **MARGIN)
     ctl, _ = _static_loop(flexiforce, s, 600.0, 1.06, measured=False, std=0.2, idle=5)
     assert ctl.caution == 0.0 and ctl.friction_scale == 1.0
     assert_allclose(ctl.pressure, capacity_inverse(flexiforce, 600.0), rtol=1e-9)
-    off = ControllerSettings(uncertainty_margin=0.5, trim_rate=0.0, **FAST)
+    off = ControllerSettings(uncertainty_margin=0.5, trim_rate=0.0, **MARGIN)
     ctl, _ = _static_loop(flexiforce, off, 600.0, 1.06, std=0.2, idle=5)  # trim off: none either
     assert ctl.caution == 0.0
 
 
 def test_caution_dropped_when_the_measurement_drops_out(flexiforce):
     """A dropout releases the trim; the caution goes with it, mid-hold (no offset left)."""
-    s = ControllerSettings(uncertainty_margin=0.5, **FAST)
+    s = ControllerSettings(uncertainty_margin=0.5, **MARGIN)
     ctl, _ = _static_loop(flexiforce, s, 600.0, 1.06, std=0.2, idle=5)
     assert ctl.caution > 0.0
     for _ in range(round(s.trim_hold / s.period) + 1):
@@ -208,7 +211,7 @@ def test_caution_shrinks_with_the_std(flexiforce):
     """Learned (σ small): the margin is m σ, next to nothing; σ = 0 or margin 0: none."""
     for margin, std, expected in ((0.5, 0.004, 0.002), (0.5, 0.0, 0.0), (0.0, 0.2, 0.0),
                                   (1.0, math.nan, 0.0)):
-        s = ControllerSettings(uncertainty_margin=margin, **FAST)
+        s = ControllerSettings(uncertainty_margin=margin, **MARGIN)
         ctl, _ = _static_loop(flexiforce, s, 600.0, 1.0, ticks=2, scale=1.05, std=std,
                                  idle=5)
         assert ctl.caution == pytest.approx(expected, abs=1e-12)

@@ -1,6 +1,8 @@
 """model/ may import only the standard library, numpy, scipy and clutch_ros.errors/.model.
 
-Exception: model/kernel.py imports numba (lazily, see tests/model/test_kernel.py).
+Exception: the compiled loops import numba, lazily and only once the kernel is available:
+model/kernel.py (tests/model/test_kernel.py) and model/compliance.py
+(tests/model/test_compliance.py).
 """
 
 import ast
@@ -13,7 +15,7 @@ MODEL_DIR = Path(clutch_ros.model.__file__).parent
 ALLOWED_ROOTS = {"numpy", "scipy"}
 ALLOWED_PACKAGE = ("clutch_ros.errors", "clutch_ros.model")
 #: module -> further roots it may import (the compiled kernel: numba)
-ALLOWED_IN = {"kernel.py": {"numba"}}
+ALLOWED_IN = {"kernel.py": {"numba"}, "compliance.py": {"numba"}}
 
 
 def _imports(path: Path):

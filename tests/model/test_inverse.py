@@ -76,3 +76,22 @@ def test_zero_slip_uses_static_friction(flexiforce):
     # at zero slip the capacity is the static one: less pressure for the same torque
     assert (pressure_for_torque(flexiforce, 1000.0, 35.0, 0.0)
             < pressure_for_torque(flexiforce, 1000.0, 35.0, 5.0))
+
+
+def test_solution_equals_brentqs_root_where_mu_is_linear_or_floored(flexiforce):
+    # the closed form (mu above its floor) and the brentq fallback (floor reached) both
+    # agree with a brentq root of the forward capacity to rounding
+    from scipy.optimize import brentq
+
+    fr, p_max = flexiforce.friction, flexiforce.pack.max_pressure
+    floored = fr.temperature_ref + (fr.mu_min / fr.mu_ref - 1.0) / fr.temperature_slope
+    rng = np.random.default_rng(7)
+    for temp in [*rng.uniform(-20.0, 150.0, 30), floored + 5.0 * np.sign(-fr.temperature_slope)]:
+        slip = float(rng.uniform(-20.0, 20.0))
+        cap = float(torque_capacity(flexiforce, p_max, temp, slip))
+        torque = float(rng.uniform(0.01, 1.0)) * cap
+        root = brentq(lambda p, t=temp, w=slip, q=torque: float(
+            torque_capacity(flexiforce, p, t, w)) - q, 0.0, p_max, xtol=1e-9,
+            rtol=4 * np.finfo(float).eps)
+        assert_allclose(pressure_for_torque(flexiforce, torque, temp, slip), root,
+                        rtol=1e-12, atol=1e-8)

@@ -14,6 +14,7 @@ from clutch_ros.model import (
     friction_coefficient,
 )
 from clutch_ros.model.params import (
+    DrivetrainParams,
     FrictionParams,
     PackParams,
     SlipParams,
@@ -49,7 +50,7 @@ def test_design_keys_are_exactly_the_required_ones():
 
 def test_specs_cover_every_field_and_defaults_are_valid():
     groups = {"clutch": PackParams, "friction": FrictionParams, "spline": SplineParams,
-              "slip": SlipParams, "thermal": ThermalParams}
+              "slip": SlipParams, "thermal": ThermalParams, "drivetrain": DrivetrainParams}
     keys = {f"{ns}.{f.name}" for ns, cls in groups.items() for f in dataclasses.fields(cls)}
     assert keys == set(PARAMETER_SPECS)
     for key, spec in PARAMETER_SPECS.items():

@@ -58,11 +58,12 @@ def test_trim_share_is_published_and_released_without_measurement(controller):
 
 
 def test_unlearned_scale_is_inverted_at_its_upper_bound(controller):
-    """friction_scale_std 0.2 (nothing learned): the step is commanded for μ x 1.2, not 1.1.
+    """friction_scale_std 0.2 (nothing learned): the step is commanded for a higher μ.
 
-    ``controller.uncertainty_margin`` 0.5 (default) puts the inverted scale at s + 0.5 σ while
-    a measurement lets the trim act; the model at s is right here, so the trim then takes
-    the command up to the best estimate's inverse, from below.
+    While a measurement lets the trim act the inverted scale is the larger of s + 0.5 σ
+    (``controller.uncertainty_margin``) and the start's (s + 2 σ) / 1.05
+    (``controller.uncertainty_range`` 2, defaults): here 1.1 + 0.329. The model at s is right
+    here, so the trim then takes the command up to the best estimate's inverse, from below.
     """
     from clutch_ros.config.params_file import load_params
     from clutch_ros.model.adaptation import scaled_params
@@ -84,14 +85,15 @@ def test_unlearned_scale_is_inverted_at_its_upper_bound(controller):
     step_t = _stamp(commands[stepped])
     early = [c.pressure for c in commands[stepped:] if _stamp(c) < step_t + 0.4]
     best = pressure_for_torque(params, REQUEST, 40.0, W10)  # the inverse at s = 1.1
-    cautious = pressure_for_torque(scaled_params(base, SCALE + 0.1), REQUEST, 40.0, W10)
+    caution = (SCALE + 2 * 0.2) / 1.05 - SCALE  # the start's, above 0.5 σ = 0.1
+    cautious = pressure_for_torque(scaled_params(base, SCALE + caution), REQUEST, 40.0, W10)
     print(f"early max {max(early) / 1e5:.2f} bar, cautious {cautious / 1e5:.2f}, "
           f"best {best / 1e5:.2f}, final {commands[-1].pressure / 1e5:.2f}")
     assert cautious < 0.95 * best
     # before the trim acts: never above the cautious inverse's overshoot guard (1.05 x), so
     # below what the best estimate asks for
     assert max(early) <= 1.001 * pressure_for_torque(
-        scaled_params(base, SCALE + 0.1), 1.05 * REQUEST, 40.0, W10) < best
+        scaled_params(base, SCALE + caution), 1.05 * REQUEST, 40.0, W10) < best
     assert max(early) == pytest.approx(cautious, rel=0.01)  # held there until the trim acts
     final = commands[-1]
     assert final.pressure == pytest.approx(best, rel=0.01)  # the trim undid the caution

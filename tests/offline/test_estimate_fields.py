@@ -39,10 +39,12 @@ def _live(params, bag):
 
     from clutch_ros.model import SampleRejected
     from clutch_ros.model.adaptation import AdaptationSettings, AdaptiveEstimator
+    from clutch_ros.model.uncertainty import DEFAULTS, TorqueStd
     from clutch_ros.nodes.convert import EstimateMessage
     from clutch_ros.nodes.stamps import stamp_to_sec
 
     estimator = AdaptiveEstimator(params, AdaptationSettings(enabled=False), max_gap_s=MAX_GAP)
+    torque_std = TorqueStd(DEFAULTS)  # the node's error model without uncertainty.* given
     out = EstimateMessage(ClutchEstimate)
     stamps, rows, strings = [], {f.name: [] for f in interfaces.ESTIMATE_FIELDS}, set()
     with BagReader(bag) as reader:
@@ -59,7 +61,9 @@ def _live(params, bag):
                 continue
             if not math.isfinite(res.estimate.modelled_torque):
                 continue
-            filled = out.fill(res.estimate, res.adaptation, header)
+            std = torque_std.update(stamp_to_sec(header.stamp), res.estimate.modelled_torque,
+                                    res.estimate.slip_speed_filtered)
+            filled = out.fill(res.estimate, res.adaptation, header, std)
             stamps.append(interfaces.stamp_to_ns(header.stamp.sec, header.stamp.nanosec))
             for name, values in rows.items():
                 value = getattr(filled, name)
@@ -81,6 +85,7 @@ def test_replay_fills_every_field_the_live_node_fills(tmp_path):
     assert cols["stamp_ns"].tolist() == stamps.tolist()  # the same published rows
     assert live_strings == {(strings["header.frame_id"], strings["spline_law"])}
     assert np.any(np.asarray(live["spline_correction"]) != 0.0)  # the field carries data
+    assert np.all(np.asarray(live["modelled_torque_std"]) > 0.0)  # so does the uncertainty
     for field in interfaces.ESTIMATE_FIELDS:
         if field.kind == "string":
             continue

@@ -1,0 +1,170 @@
+"""Frames as plain tuples, read in batches: a full bus without an object per frame.
+
+python-can hands every frame over as a :class:`can.Message` (on ``udp_multicast``: a select,
+a recvmsg, a msgpack dict and a checked ``Message`` per frame, behind two ``BusABC.recv``
+layers). At 8,000 frames/s that cost more CPU than the decoding. This module reads
+``udp_multicast`` datagrams straight from the socket, as many as are queued per wake-up, into
+:data:`RawFrame` tuples; :meth:`clutch_ros.canbus.bus.ReconnectingBus.recv_batch` uses it
+(other interfaces go through python-can's ``recv`` and :func:`message_frame`).
+
+Exactness: a datagram whose msgpack map is exactly what python-can's ``pack_message`` writes
+(its eleven keys, ``bool`` flags, ``int`` identifier and DLC, ``bytes`` payload) and passes
+the checks of ``can.Message(check=True)`` becomes a tuple directly; any other datagram goes
+through python-can's own ``unpack_message(..., check=True)``, so a malformed one fails with
+the same exception (and the same :func:`~clutch_ros.canbus.udp.malformed_reason`) as on
+python-can's path. The receive time is the kernel's ``SO_TIMESTAMPNS``, as python-can's. FD
+frames are ignored on a bus opened without FD, as python-can does.
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+import struct
+from typing import Any
+
+import can
+from can.interfaces.udp_multicast.utils import msgpack, unpack_message  # (None: not installed)
+
+__all__ = ["RawFrame", "UdpBatchReader", "frame_message", "message_frame"]
+
+#: A frame: (bus time [s], identifier, is_extended, is_remote, is_error, is_fd, dlc, payload);
+#: the argument order of :meth:`clutch_ros.canbus.assembler.RigStateAssembler.feed_frame`.
+RawFrame = tuple[float, int, bool, bool, bool, bool, int, bytes]
+
+_KEYS = frozenset({"timestamp", "arbitration_id", "is_extended_id", "is_remote_frame",
+                   "is_error_frame", "channel", "dlc", "data", "is_fd", "bitrate_switch",
+                   "error_state_indicator"})
+_SO_TIMESTAMPNS = 35  # linux/asm-generic/socket.h (python-can's constant)
+_TIMESPEC = struct.Struct("@ll")
+
+
+def message_frame(msg: can.Message) -> RawFrame:
+    """Return the :data:`RawFrame` of a python-can message."""
+    return (float(msg.timestamp), msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame,
+            msg.is_error_frame, msg.is_fd, msg.dlc, bytes(msg.data))
+
+
+def frame_message(frame: RawFrame) -> can.Message:
+    """Return a :class:`can.Message` of a :data:`RawFrame` (for the optional raw topic)."""
+    stamp, ident, ext, remote, error, fd, dlc, data = frame
+    return can.Message(timestamp=stamp, arbitration_id=ident, is_extended_id=ext,
+                       is_remote_frame=remote, is_error_frame=error, is_fd=fd, dlc=dlc,
+                       data=data)
+
+
+class UdpBatchReader:
+    """Read the queued datagrams of a python-can ``udp_multicast`` bus as :data:`RawFrame`.
+
+    Use :meth:`for_bus`: None when the bus is no udp_multicast bus this can read exactly
+    (no kernel timestamps, software CAN filters set, other python-can internals).
+    """
+
+    def __init__(self, sock: socket.socket, fd: bool, max_buffer: int = 4096) -> None:
+        self.sock, self.fd, self.max_buffer = sock, fd, max_buffer
+        self._ancillary = socket.CMSG_SPACE(_TIMESPEC.size)
+        # python-can gives the socket a send timeout, and CPython then waits up to that long
+        # before any recvmsg, MSG_DONTWAIT or not: poll(0) says when the queue is empty
+        self._poll = select.poll()
+        self._poll.register(sock, select.POLLIN)
+
+    @classmethod
+    def for_bus(cls, bus: can.BusABC) -> UdpBatchReader | None:
+        """Return a reader of ``bus``'s socket, or None (see the class docstring)."""
+        multicast = getattr(bus, "_multicast", None)
+        sock = getattr(multicast, "_socket", None)
+        if (sock is None or msgpack is None
+                or not getattr(multicast, "timestamp_nanosecond", False)
+                or getattr(bus, "_filters", None) or not hasattr(socket, "CMSG_SPACE")):
+            return None
+        return cls(sock, bus.protocol is can.CanProtocol.CAN_FD,
+                   getattr(multicast, "max_buffer", 4096))
+
+    def read(self, timeout: float | None, limit: int,
+             errors: list[BaseException]) -> list[RawFrame]:
+        """Wait up to ``timeout`` [s] for a datagram, then read up to ``limit`` queued ones.
+
+        Datagrams that are no valid frame append their ``can.CanOperationError`` (caused as
+        on python-can's path) to ``errors`` and are skipped. Raises ``can.CanOperationError``
+        when the socket fails before any frame was read (after: the frames read are returned,
+        and the next call meets the failure).
+        """
+        sock, out = self.sock, list[RawFrame]()
+        try:
+            ready, _, _ = select.select([sock], [], [], timeout)
+        except OSError as exc:
+            raise can.CanOperationError(f"Failed to wait for IP/UDP socket: {exc}") from exc
+        if not ready:
+            return out
+        recvmsg, size, anc, dontwait = (sock.recvmsg, self.max_buffer, self._ancillary,
+                                        socket.MSG_DONTWAIT)
+        assert msgpack is not None  # for_bus made no reader without it
+        unpackb, keys, fd_ok = msgpack.unpackb, _KEYS, self.fd
+        poll, more = self._poll.poll, False
+        while len(out) < limit:
+            if more and not poll(0):
+                break
+            more = True
+            try:
+                raw, ancillary, _, _ = recvmsg(size, anc, dontwait)
+            except BlockingIOError:
+                break
+            except OSError as exc:
+                if out:
+                    break
+                raise can.CanOperationError("failed to receive via socket") from exc
+            if len(ancillary) != 1 or ancillary[0][0] != socket.SOL_SOCKET \
+                    or ancillary[0][1] != _SO_TIMESTAMPNS:
+                raise can.CanOperationError("received control message type that was not "
+                                            "requested")
+            sec, nsec = _TIMESPEC.unpack(ancillary[0][2])
+            stamp = sec + nsec * 1.0e-9
+            frame = None
+            try:
+                d = unpackb(raw, raw=False)
+                if type(d) is dict and d.keys() == keys:
+                    frame = _fast(stamp, d)
+            except Exception:  # noqa: BLE001 - python-can's own unpacking below says why
+                frame = None
+            if frame is None:
+                try:
+                    frame = _slow(raw, stamp)
+                except can.CanOperationError as err:
+                    errors.append(err)
+                    continue
+            if frame[5] and not fd_ok:  # an FD frame on a bus opened without FD: ignored
+                continue
+            out.append(frame)
+        return out
+
+
+def _fast(stamp: float, d: dict[str, Any]) -> RawFrame | None:
+    """Return the frame of a msgpack map as python-can writes it, None if anything differs."""
+    ident, ext, remote, error = (d["arbitration_id"], d["is_extended_id"],
+                                 d["is_remote_frame"], d["is_error_frame"])
+    fd, dlc, data = d["is_fd"], d["dlc"], d["data"]
+    if not (type(ident) is int and type(dlc) is int and type(data) is bytes
+            and type(ext) is bool and type(remote) is bool and type(error) is bool
+            and type(fd) is bool and type(d["bitrate_switch"]) is bool
+            and type(d["error_state_indicator"]) is bool):
+        return None
+    if not 0 <= ident < (0x20000000 if ext else 0x800) or not 0 <= dlc <= (64 if fd else 8):
+        return None
+    if remote:
+        if error or fd:
+            return None
+        data = b""  # can.Message drops a remote frame's payload
+    elif dlc != len(data):
+        return None
+    if not fd and (d["bitrate_switch"] or d["error_state_indicator"]):
+        return None
+    return (stamp, ident, ext, remote, error, fd, dlc, data)
+
+
+def _slow(raw: bytes, stamp: float) -> RawFrame:
+    """python-can's own unpacking (``check=True``), raising as its udp_multicast bus does."""
+    try:
+        msg = unpack_message(raw, replace={"timestamp": stamp}, check=True)
+    except Exception as exception:
+        raise can.CanOperationError("could not unpack received message") from exception
+    return message_frame(msg)

@@ -1,0 +1,36 @@
+"""The estimator's ``uncertainty.*`` parameters: the error model of ``modelled_torque_std``.
+
+Defaults, units and meaning come from :class:`clutch_ros.model.uncertainty.ErrorModel`
+(``clutch fit`` writes identified values into the parameter file it writes). Read-only: the
+error model belongs to the model parameters it was identified with.
+"""
+
+from __future__ import annotations
+
+from clutch_ros.model.uncertainty import DEFAULTS, ErrorModel
+from clutch_ros.nodes.parameters import ParamSpec
+
+__all__ = ["UNCERTAINTY_PARAMS", "error_model"]
+
+_D = DEFAULTS
+UNCERTAINTY_PARAMS = [
+    ParamSpec("uncertainty.base", _D.base, "constant part of modelled_torque_std", "N m",
+              0.0, 1e6, read_only=True),
+    ParamSpec("uncertainty.rel", _D.rel, "part of modelled_torque_std proportional to "
+              "|modelled torque|", "1", 0.0, 100.0, read_only=True),
+    ParamSpec("uncertainty.rate_time", _D.rate_time, "part proportional to the filtered "
+              "|d modelled torque/dt|", "s", 0.0, 1e3, read_only=True),
+    ParamSpec("uncertainty.stick_rel", _D.stick_rel, "extra part proportional to the torque "
+              "while the clutch sticks", "1", 0.0, 100.0, read_only=True),
+    ParamSpec("uncertainty.time_constant", _D.time_constant, "low-pass time constant of the "
+              "torque rate", "s", 1e-4, 100.0, read_only=True),
+    ParamSpec("uncertainty.stick_speed", _D.stick_speed, "|filtered slip speed| below which "
+              "the clutch counts as sticking", "rad/s", 1e-6, 100.0, read_only=True),
+    ParamSpec("uncertainty.max_gap", _D.max_gap, "a sample gap above this restarts the torque "
+              "rate filter", "s", 1e-4, 3600.0, read_only=True),
+]
+
+
+def error_model(cfg: dict) -> ErrorModel:
+    """Return the ErrorModel of the ``uncertainty.*`` values of ``cfg`` (may raise)."""
+    return ErrorModel.from_flat({k: v for k, v in cfg.items() if k.startswith("uncertainty.")})

@@ -1,0 +1,27 @@
+"""The live CPU benchmark runs the quick demo with its echo baseline (no timing assertions)."""
+
+import json
+import math
+import os
+
+from benchmarks import live_cpu as bench
+
+
+def test_read_cpu_of_this_process_and_of_none():
+    assert bench.read_cpu(os.getpid()) >= 0.0
+    assert bench.read_cpu(2**22 + 12345) is None  # beyond pid_max: no such process
+
+
+def test_bench_prints_every_node_per_second_and_per_message(capsys, tmp_path):
+    assert bench.main(["--quick", "--json", "--keep", str(tmp_path / "run")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert set(res["nodes"]) == {*bench.NODES, bench.ECHO}
+    assert res["rig_time_s"] > 10.0  # the quick profile's driven part
+    for name, node in res["nodes"].items():
+        assert node["messages"] > 0, name
+        for key in ("cpu_s", "cpu_core", "cpu_per_message_ms"):
+            assert math.isfinite(node[key]) and node[key] > 0.0, (name, key, node)
+    chain = sum(res["nodes"][n]["cpu_core"] for n in bench.CHAIN)
+    assert math.isclose(res["chain_core"], chain)
+    assert res["within_budget"] == (chain <= res["budget_core"])
+    assert (tmp_path / "run" / "bag").is_dir()  # --keep keeps the demo's run directory

@@ -1,0 +1,126 @@
+"""recv_batch: the same frames, echoes and malformed counts as python-can's recv, in batches."""
+
+import time
+import uuid
+
+import can
+import pytest
+
+from clutch_ros.canbus.batch import UdpBatchReader, frame_message, message_frame
+from clutch_ros.canbus.bus import BusConfig, ReconnectingBus, open_bus
+
+from .recorder import MALFORMED_DATAGRAMS, DatagramSender, private_group
+
+#: every kind of frame python-can's udp_multicast carries
+FRAMES = (
+    can.Message(arbitration_id=0x100, is_extended_id=False, data=b"\x01\x02\x03"),
+    can.Message(arbitration_id=0x7FF, is_extended_id=False, data=bytes(8)),
+    can.Message(arbitration_id=0x18FF0012, is_extended_id=True, data=b"\xAA" * 8),
+    can.Message(arbitration_id=0x123, is_extended_id=False, is_remote_frame=True, dlc=4),
+    can.Message(arbitration_id=0x0, is_extended_id=False, data=b""),
+    can.Message(arbitration_id=0x20, is_extended_id=False, is_error_frame=True, data=b"\x00\x04"),
+    can.Message(arbitration_id=0x321, is_extended_id=False, is_fd=True, bitrate_switch=True,
+                data=bytes(range(12)), dlc=12),
+)
+
+
+def _fields(frame):
+    """Everything but the receive time."""
+    return frame[1:]
+
+
+def _read_all(read, want: int, timeout: float = 5.0) -> list:
+    out, end = [], time.monotonic() + timeout
+    while len(out) < want and time.monotonic() < end:
+        out.extend(read())
+    return out
+
+
+def test_batches_equal_python_cans_frames_and_malformed_counts():
+    group, port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
+    with ReconnectingBus(config) as batched, ReconnectingBus(config) as single, \
+            open_bus(config) as peer, DatagramSender(group, port) as junk:
+        assert UdpBatchReader.for_bus(batched._bus) is not None  # the fast path is taken
+        for _, payload in MALFORMED_DATAGRAMS:
+            junk.send(payload)
+        for msg in FRAMES * 20:
+            peer.send(msg)
+        want = len(FRAMES) * 20
+        got = _read_all(lambda: batched.recv_batch(0.5, limit=16), want)
+        ref = _read_all(lambda: [message_frame(m) for m in [single.recv(0.5)] if m is not None],
+                        want)
+        assert batched.recv_batch(0.05) == []  # nothing left over
+        assert [_fields(f) for f in got] == [_fields(f) for f in ref]
+        assert {_fields(f) for f in got} == {_fields(message_frame(m)) for m in FRAMES}
+        now = time.time()
+        assert all(now - 30.0 < f[0] <= now for f in got)  # kernel receive times
+        assert batched.status().malformed_by_reason == single.status().malformed_by_reason
+        assert batched.status().malformed_frames == len(MALFORMED_DATAGRAMS)
+        assert batched.status().disconnects == 0
+
+
+def test_own_frames_are_removed_from_batches_others_kept():
+    group, port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
+    with ReconnectingBus(config) as bus, open_bus(config) as peer:
+        own = can.Message(arbitration_id=0x80, is_extended_id=False, data=bytes(8))
+        bus.send(own)
+        peer.send(own)  # the same frame from another node: kept
+        got = _read_all(lambda: bus.recv_batch(0.5), 1)
+        time.sleep(0.1)
+        got += bus.recv_batch(0.1)
+        assert [_fields(f) for f in got] == [_fields(message_frame(own))]
+        assert bus.own_echoes == 1
+
+
+def test_a_bus_without_the_udp_socket_goes_through_recv():
+    config = BusConfig(interface="virtual", channel=f"v-{uuid.uuid4().hex}")
+    with ReconnectingBus(config) as bus, open_bus(config) as peer:
+        assert UdpBatchReader.for_bus(bus._bus) is None
+        for msg in FRAMES[:3]:
+            peer.send(msg)
+        got = _read_all(lambda: bus.recv_batch(0.5, limit=2), 3)
+        assert [_fields(f) for f in got] == [_fields(message_frame(m)) for m in FRAMES[:3]]
+
+
+def test_software_filters_keep_python_cans_path():
+    group, port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port},
+                       can_filters=("0x100:0x7FF",))
+    with ReconnectingBus(config) as bus, open_bus(BusConfig(
+            interface="udp_multicast", channel=group, extra={"port": port})) as peer:
+        assert UdpBatchReader.for_bus(bus._bus) is None
+        for msg in FRAMES[:3]:
+            peer.send(msg)
+        got = _read_all(lambda: bus.recv_batch(0.5), 1)
+        assert [f[1] for f in got] == [0x100]
+
+
+def test_a_closed_bus_raises_like_recv():
+    group, port = private_group()
+    bus = ReconnectingBus(BusConfig(interface="udp_multicast", channel=group,
+                                    extra={"port": port}))
+    bus.shutdown()
+    with pytest.raises(can.CanOperationError):
+        bus.recv_batch(0.01)
+
+
+@pytest.mark.parametrize("msg", FRAMES)
+def test_frame_and_message_round_trip(msg):
+    again = frame_message(message_frame(msg))
+    assert message_frame(again) == message_frame(msg)
+
+
+def test_a_send_timeout_on_the_socket_does_not_hold_a_batch_back():
+    """python-can's send sets a socket timeout; CPython then waits that long before recvmsg."""
+    group, port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
+    with ReconnectingBus(config) as bus, open_bus(config) as peer:
+        bus.send(can.Message(arbitration_id=0x80, is_extended_id=False, data=bytes(8)),
+                 timeout=10.0)  # the socket's timeout is now 10 s
+        peer.send(FRAMES[0])
+        start = time.monotonic()
+        got = _read_all(lambda: bus.recv_batch(1.0), 1)
+        assert [f[1] for f in got] == [0x100]
+        assert time.monotonic() - start < 5.0  # not the socket's 10 s

@@ -1,0 +1,120 @@
+"""The torque error model (clutch_ros.model.uncertainty): fit, calibration, phases, defaults."""
+
+import math
+
+import numpy as np
+import pytest
+
+from clutch_ros.model.errors import ModelError
+from clutch_ros.model.uncertainty import (
+    DEFAULTS,
+    Z95,
+    ErrorModel,
+    TorqueStd,
+    coverage,
+    features,
+    fit_error_model,
+    phases,
+    torque_std,
+)
+
+
+def _run(seed, n=6000, dt=0.01):
+    """Return a synthetic run: pressure steps, ramps, a torque and a measurement.
+
+    The residual's std grows with the torque and its rate (truth: 2 + 0.01 T + 0.3 R).
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    p = np.zeros(n)
+    for start in range(0, n, 1000):  # a step every 10 s, then a ramp down
+        level = rng.uniform(5e5, 3e6)
+        p[start + 100:start + 600] = level
+        p[start + 600:start + 800] = np.linspace(level, 0.0, 200)
+    modelled = np.convolve(p * 4e-4, np.ones(30) / 30, mode="full")[:n]
+    slip = np.where(p > 0, 1.0, 0.0) + rng.normal(0, 0.01, n)
+    rate = np.abs(np.gradient(modelled, dt))
+    true_std = 2.0 + 0.01 * np.abs(modelled) + 0.3 * rate
+    measured = modelled + rng.normal(0.0, 1.0, n) * true_std
+    return t, p, modelled, measured, slip
+
+
+def test_the_node_and_the_replay_compute_the_same_std():
+    t, _, modelled, _, slip = _run(1, n=1000)
+    modelled = modelled.copy()
+    modelled[[10, 11, 200]] = np.nan  # rejected samples: no value, the filter unmoved
+    model = ErrorModel(base=2.0, rel=0.05, rate_time=0.1, stick_rel=0.2)
+    node = TorqueStd(model)
+    live = [node.update(a, b, c) for a, b, c in zip(t, modelled, slip)]
+    np.testing.assert_array_equal(torque_std(model, t, modelled, slip), np.array(live))
+    assert math.isnan(live[10]) and live[12] > 0.0
+    assert np.all(np.isnan(features(model, t, modelled, slip)[[10, 11, 200]]))
+
+
+def test_the_rate_filter_restarts_after_a_gap_and_a_step_back():
+    model = ErrorModel(base=0.0, rel=0.0, rate_time=1.0, time_constant=0.01)
+    std = torque_std(model, np.array([0.0, 0.01, 5.0, 5.01, 1.0]),
+                     np.array([0.0, 100.0, 100.0, 100.0, 500.0]), np.ones(5))
+    assert std[0] == 0.0 and std[1] > 1000.0  # 1e4 N m/s, half filtered
+    assert std[2] == 0.0  # a gap beyond max_gap restarts at 0
+    assert std[4] == 0.0  # time going back restarts too
+
+
+def test_fit_on_one_run_holds_95_percent_on_others_in_both_phases():
+    t, p, modelled, measured, slip = _run(2)
+    model = fit_error_model(t, modelled, measured, slip)
+    assert model.rate_time > 0.0  # the transients widen the band
+    for seed in (3, 4, 5):
+        t, p, modelled, measured, slip = _run(seed)
+        std = torque_std(model, t, modelled, slip)
+        cov = coverage(measured, modelled, std, phases(t, p, slip))
+        assert 0.93 <= cov["coverage_95"] <= 0.97, cov
+        assert 0.9 <= cov["coverage_95_transient"] <= 0.99, cov
+        assert 0.9 <= cov["coverage_95_steady"] <= 0.99, cov
+        assert 0 < cov["coverage_transient_samples"] < cov["coverage_samples"]
+
+
+def test_a_constant_band_fails_one_phase():
+    """Check per phase: a constant band of 95 % overall is wrong in one of the phases.
+
+    Too wide in the steady phases or too narrow in the transients.
+    """
+    t, p, modelled, measured, slip = _run(6)
+    resid = np.abs(measured - modelled)
+    width = np.quantile(resid, 0.95) / Z95
+    cov = coverage(measured, modelled, np.full(t.size, width), phases(t, p, slip))
+    assert abs(cov["coverage_95"] - 0.95) < 0.01
+    assert cov["coverage_95_transient"] < 0.85 or cov["coverage_95_steady"] > 0.99, cov
+
+
+def test_phases_follow_the_pressure_rate_and_slip_reversal():
+    t = np.arange(0, 10, 0.01)
+    p = np.where(t >= 2.0, 1e6, 0.0)
+    slip = np.where(t >= 7.0, -1.0, 1.0)
+    tr = phases(t, p, slip)
+    assert not tr[t < 2.0].any() and tr[(t >= 2.0) & (t <= 3.09)].all()  # the step + 0.1 s span
+    assert not tr[(t > 3.11) & (t < 7.0)].any() and tr[(t >= 7.0) & (t <= 8.0)].all()
+
+
+def test_coverage_counts_only_measured_samples():
+    cov = coverage(np.array([1.0, np.nan, 10.0]), np.zeros(3), np.ones(3),
+                   np.array([True, True, False]))
+    assert cov == {"coverage_95": 0.5, "coverage_95_transient": 1.0,
+                   "coverage_95_steady": 0.0, "coverage_samples": 2,
+                   "coverage_transient_samples": 1}
+    assert math.isnan(coverage(np.array([np.nan]), np.zeros(1), np.ones(1),
+                               np.zeros(1, bool))["coverage_95"])
+
+
+def test_parameters_round_trip_and_bad_values_are_refused():
+    model = ErrorModel(base=1.5, rel=0.02, rate_time=0.3, stick_rel=0.1)
+    assert ErrorModel.from_flat({**model.to_flat(), "friction.mu": 0.1}) == model
+    assert ErrorModel.from_flat({}) == DEFAULTS
+    with pytest.raises(ModelError, match="unknown parameter 'uncertainty.bse'"):
+        ErrorModel.from_flat({"uncertainty.bse": 1.0})
+    with pytest.raises(ModelError, match=r"uncertainty.rel must be a finite number >= 0"):
+        ErrorModel(rel=-0.1)
+    with pytest.raises(ModelError, match=r"uncertainty.time_constant .* > 0"):
+        ErrorModel(time_constant=0.0)
+    with pytest.raises(ModelError, match="at least 20 measured samples"):
+        fit_error_model(np.arange(5.0), np.ones(5), np.ones(5), np.ones(5))
