@@ -92,6 +92,7 @@ from clutch_ros.nodes.can_diagnostics import hardware_id, node_status
 from clutch_ros.nodes.command_sources import CommandSources
 from clutch_ros.nodes.convert import can_frame_to_ros, rig_state_to_ros
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
+from clutch_ros.nodes.lockstep import time_of_frame
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM
 from clutch_ros.nodes.qos import publisher_qos, sensor_qos
 from clutch_ros.nodes.renamed_params import declare_with_renames
@@ -256,9 +257,10 @@ class CanBridgeNode(LifecycleNode):
     def _node_time(self) -> float:
         """Return the node clock [s] (ROS time: /clock with use_sim_time).
 
-        With use_sim_time, never earlier than the newest admitted command's stamp: a command
-        stamped T proves that /clock reached T, even when it got here before that /clock
-        did (a lock-step rig then sends frames of T, which must be stamped T).
+        With use_sim_time, never earlier than the newest admitted command's stamp (a command
+        stamped T proves that /clock reached T) nor the newest lock-step time frame on the bus
+        (sent before a tick's frames, which must be stamped T even when this node's /clock
+        is late: :mod:`clutch_ros.nodes.lockstep`).
         """
         now = self.get_clock().now().nanoseconds * 1e-9
         return max(now, self._time_floor) if self._sim_time else now
@@ -348,6 +350,10 @@ class CanBridgeNode(LifecycleNode):
         assert assembler is not None and gate is not None and pacer is not None
         try:
             if self._sim_time:  # received at the node's (simulated) time, not the PC's
+                tick = time_of_frame(frame[1], frame[2], frame[7])
+                if tick is not None:  # a lock-step rig's time frame: the frames after it
+                    self._time_floor = max(self._time_floor, tick)
+                    return
                 frame = (self._node_time(), *frame[1:])
             key = assembler.feed_frame(*frame)
             if not st.active:

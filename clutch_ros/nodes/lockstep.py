@@ -16,8 +16,9 @@ steps; default 10 ms, the controller's, the bridge's rig_state and the PumpReque
    fired at ``T``, or it admitted the command stamped ``T``: either way its clock reads ``T``,
    so it stamps the frames of step 3 with ``T``; a frame before the command can be a late
    answer to the previous tick);
-3. send the frames due (between sync ticks the rig sends none: one frame of each kind per
-   period, and the bridge stamps each with its clock, which no other tick can advance);
+3. send the time frame (``TIME_FRAME_ID``: ``T`` on the bus), then the frames due; the
+   bridge stamps each frame with the newest time frame before it, whenever its /clock
+   arrives (between sync ticks the rig sends none: one frame of each kind per period);
 4. wait until a ``clutch_estimate`` stamped ``>= T`` arrived: the bridge read the frames and
    published ``rig_state`` ``T``, the estimator answered it, and the controller, which
    subscribes to the same estimate, has it before the next ``/clock``; meanwhile the bridge
@@ -40,18 +41,40 @@ import threading
 import time
 from collections.abc import Callable
 
+import can
 from clutch_msgs.msg import ClutchEstimate, PressureCommand
 from rosgraph_msgs.msg import Clock
 
 from clutch_ros.interfaces import CLUTCH_ESTIMATE, PRESSURE_COMMAND
 from clutch_ros.nodes.qos import subscriber_qos
 
-__all__ = ["EPOCH_NS", "REPUBLISH", "STARTUP_WAIT", "LockStepSync"]
+__all__ = ["EPOCH_NS", "REPUBLISH", "STARTUP_WAIT", "TIME_FRAME_ID", "LockStepSync",
+           "time_frame", "time_of_frame"]
+
+#: CAN identifier of the lock-step time frame (as CANopen's TIME object, not in the rig's
+#: DBC): the rig sends it before a sync tick's frames, 8 bytes, the tick's ROS time [ns] as
+#: little-endian uint64; the bridge's receive thread reads it from the same ordered stream as
+#: the frames, so it stamps every frame of the tick with the tick's time however late its
+#: node clock (``/clock`` over DDS) is
+TIME_FRAME_ID = 0x7F0
 
 EPOCH_NS = 100_000 * 1_000_000_000  # [ns] ROS time of simulation time 0 (1970-01-02)
 REPUBLISH = 0.02  # [s] wall: /clock is published again this often while waiting
 STARTUP_WAIT = 0.5  # [s] wall: a wait before the chain first answered gives up after this
 _POLL = 0.001  # [s] wall: CAN port poll interval while waiting
+
+
+def time_frame(ns: int) -> can.Message:
+    """Return the lock-step time frame of ROS time ``ns`` [ns] (a ``can.Message``)."""
+    return can.Message(arbitration_id=TIME_FRAME_ID, is_extended_id=False,
+                       data=int(ns).to_bytes(8, "little"))
+
+
+def time_of_frame(identifier: int, is_extended: bool, data: bytes) -> float | None:
+    """ROS time [s] carried by a lock-step time frame; None for any other frame."""
+    if identifier != TIME_FRAME_ID or is_extended or len(data) != 8:
+        return None
+    return int.from_bytes(data, "little") * 1e-9
 
 
 def _ns(stamp) -> int:
@@ -73,7 +96,8 @@ class LockStepSync:
     """
 
     def __init__(self, node, dt: float, every: int, timeout: float,
-                 poll: Callable[[], int], epoch_ns: int = EPOCH_NS) -> None:
+                 poll: Callable[[], int], epoch_ns: int = EPOCH_NS,
+                 send_time: Callable[[int], None] | None = None) -> None:
         self.every = int(every)
         self.timeout = float(timeout)
         self._dt_ns = round(dt * 1e9)
@@ -82,6 +106,7 @@ class LockStepSync:
         # seconds come back a few 1e-11 s off)
         self._slack_ns = self._dt_ns // 2
         self._poll = poll
+        self._send_time = send_time  # sends the time frame of a tick [ns] before its frames
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._command_ns = self._estimate_ns = -1
@@ -138,6 +163,8 @@ class LockStepSync:
             frames[0] += self._poll()
             return "" if frames[0] else "no PumpRequest frame after the tick's command"
         self._wait(ns, answered, republish=True)
+        if self._send_time is not None:
+            self._send_time(ns)
 
     def after_frames(self, t: float) -> None:
         """Wait for the estimate of the frames just sent (stamped ``t``)."""

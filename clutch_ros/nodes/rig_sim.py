@@ -42,7 +42,7 @@ from rclpy.node import Node
 from clutch_ros.canbus import BusConfig, ReconnectingBus
 from clutch_ros.canbus.dbc import RigDatabase
 from clutch_ros.nodes.diagnostics import Diagnostics
-from clutch_ros.nodes.lockstep import LockStepSync
+from clutch_ros.nodes.lockstep import LockStepSync, time_frame
 from clutch_ros.nodes.parameters import DBC_FILE_PARAM, ParamSpec, declare_params
 from clutch_ros.nodes.runner import run_node
 from clutch_ros.rig import RigPlant, RigSimulator
@@ -135,7 +135,9 @@ class RigSimNode(Node):
                                      f"not a whole number of rig.dt {cfg['rig.dt']} s")
             self._lockstep = LockStepSync(self, cfg["rig.dt"], every,
                                           cfg["rig.lockstep_timeout"],
-                                          lambda: self._port.poll(self._sim.time))
+                                          lambda: self._port.poll(self._sim.time),
+                                          send_time=lambda ns: self._bus.send(
+                                              time_frame(ns), timeout=0.05))
             stamp_clock = self._lockstep_stamp
         self._sim = RigSimulator(plant, self._scenario, self._port, dt=cfg["rig.dt"],
                                  stamp_clock=stamp_clock, lockstep=self._lockstep)
