@@ -444,6 +444,8 @@ class CanBridgeNode(LifecycleNode):
             self._time_floor = stamp
         admitted = gate.commands
         out = gate.submit(msg.pressure, stamp if stamp > 0.0 else None)
+        if out is None and self._sim_time and gate.commands != admitted:
+            out = gate.tick()  # simulated time: every admitted command answered by a frame
         self._send(out, msg if gate.commands != admitted else None)
 
     def _send(self, out, command=None, timeout: float = SEND_TIMEOUT) -> None:
@@ -468,7 +470,8 @@ class CanBridgeNode(LifecycleNode):
         st.last_report = (out.pressure, out.reason)
         applied = PressureCommand(pressure=float(out.pressure), limited=bool(out.limited),
                                   reason=out.reason)
-        applied.header.stamp = self.get_clock().now().to_msg()
+        applied.header.stamp = (command.header.stamp if command is not None and self._sim_time
+                                else self.get_clock().now().to_msg())  # (nodes/lockstep)
         applied.requested_torque = command.requested_torque if command else 0.0
         applied.predicted_torque = command.predicted_torque if command else 0.0
         try:

@@ -11,11 +11,11 @@ steps; default 10 ms, the controller's, the bridge's rig_state and the PumpReque
    has the same stamps; small, so stamps that pass through float seconds on the way, as
    python-can's frame timestamps, keep ~1e-11 s: at a wall-clock epoch they lost ~1e-7 s);
 2. wait until (a) a ``pressure_command`` stamped ``>= T`` arrived (the controller's tick at
-   ``T`` ran, on the estimate of the previous period, which step 4 saw delivered) and (b) a
-   valid PumpRequest frame arrived on the rig's CAN port after that (the bridge's pump timer
-   fired at ``T``, or it admitted the command stamped ``T``: either way its clock reads ``T``,
-   so it stamps the frames of step 3 with ``T``; a frame before the command can be a late
-   answer to the previous tick);
+   ``T`` ran, on the estimate of the previous period, which step 4 saw delivered) and (b)
+   the bridge reported on ``pump_request`` the frame it sent for that very command (its
+   stamp and torques: on simulated time the bridge answers every admitted command with a
+   frame and reports it with the command's stamp); the frame went out before the report, so
+   the rig's CAN port has it (frames received during the waits count as received at ``T``);
 3. send the time frame (``TIME_FRAME_ID``: ``T`` on the bus), then the frames due; the
    bridge stamps each frame with the newest time frame before it, whenever its /clock
    arrives (between sync ticks the rig sends none: one frame of each kind per period);
@@ -25,9 +25,11 @@ steps; default 10 ms, the controller's, the bridge's rig_state and the PumpReque
    has also sent the PumpRequest of the command of step 2, which the plant follows from the
    next step on (frames that arrive during the waits count as received at ``T``).
 
-Why these answers: the PumpRequest frames carry no stamp and the bridge sends one only when
-its gate allows, so the rig keys on what is stamped with the tick (the controller's command,
-the estimate) and on the one frame the bridge sends every period whatever it is commanded.
+Why these answers: the PumpRequest frames carry no stamp, and the bridge's periodic frame at
+``T`` may go out before or after it admitted the command of ``T`` (its ``/clock`` and the
+command race), so the rig keys on what is stamped with the tick: the controller's command,
+the bridge's report of that command's frame, the estimate. Each answer is then the same
+whatever the order of arrival.
 Each wait is bounded by ``rig.lockstep_timeout`` of wall time; an expired wait is counted
 (``lockstep_timeouts``, WARN on /diagnostics, with what was missing) and the run goes on.
 Until the chain has answered one sync tick completely (it is still starting), a wait gives up
@@ -45,7 +47,7 @@ import can
 from clutch_msgs.msg import ClutchEstimate, PressureCommand
 from rosgraph_msgs.msg import Clock
 
-from clutch_ros.interfaces import CLUTCH_ESTIMATE, PRESSURE_COMMAND
+from clutch_ros.interfaces import CLUTCH_ESTIMATE, PRESSURE_COMMAND, PUMP_REQUEST
 from clutch_ros.nodes.qos import subscriber_qos
 
 __all__ = ["EPOCH_NS", "REPUBLISH", "STARTUP_WAIT", "TIME_FRAME_ID", "LockStepSync",
@@ -110,6 +112,8 @@ class LockStepSync:
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._command_ns = self._estimate_ns = -1
+        self._command_key: tuple[int, float, float] | None = None  # the newest command's
+        self._applied: set[tuple[int, float, float]] = set()  # the bridge's reports of them
         self.started = False
         self._last_ok = True  # the current sync tick's waits were all answered so far
         self.syncs = self.timeouts = 0
@@ -119,6 +123,8 @@ class LockStepSync:
         self._pub = node.create_publisher(Clock, "/clock", 10)
         node.create_subscription(PressureCommand, PRESSURE_COMMAND.name, self._on_command,
                                  subscriber_qos(PRESSURE_COMMAND.name, depth=10))
+        node.create_subscription(PressureCommand, PUMP_REQUEST.name, self._on_applied,
+                                 subscriber_qos(PUMP_REQUEST.name, depth=10))
         node.create_subscription(ClutchEstimate, CLUTCH_ESTIMATE.name, self._on_estimate,
                                  subscriber_qos(CLUTCH_ESTIMATE.name, depth=10))
 
@@ -138,7 +144,18 @@ class LockStepSync:
 
     def _on_command(self, msg) -> None:
         with self._cond:
-            self._command_ns = max(self._command_ns, _ns(msg.header.stamp))
+            ns = _ns(msg.header.stamp)
+            if ns >= self._command_ns:
+                self._command_key = (ns, msg.requested_torque, msg.predicted_torque)
+            self._command_ns = max(self._command_ns, ns)
+            self._cond.notify_all()
+
+    def _on_applied(self, msg) -> None:
+        """Keep the bridge's report of a frame sent for an admitted command (stamp, torques)."""
+        with self._cond:
+            ns = _ns(msg.header.stamp)
+            self._applied = {k for k in self._applied if k[0] >= ns - 10 * self._dt_ns}
+            self._applied.add((ns, msg.requested_torque, msg.predicted_torque))
             self._cond.notify_all()
 
     def _on_estimate(self, msg) -> None:
@@ -151,17 +168,17 @@ class LockStepSync:
         self._pub.publish(self._clock)
 
     def before_frames(self, t: float) -> None:
-        """Publish ``/clock`` = ``t``; wait for the controller's command and a PumpRequest."""
+        """Publish ``/clock`` = ``t``; wait for the command and the bridge's frame of it."""
         ns = self.now_ns(t)
         self._publish(ns)
-        frames = [0]
-
         def answered() -> str:
+            self._poll()  # (frames received while waiting count as received at the tick)
             if self._command_ns < ns - self._slack_ns:
-                self._poll()  # (a frame before the command proves nothing: a late one)
                 return "no pressure_command stamped at the tick"
-            frames[0] += self._poll()
-            return "" if frames[0] else "no PumpRequest frame after the tick's command"
+            if self._command_key not in self._applied:
+                return "no pump_request report of the tick's command from the bridge"
+            self._poll()  # its frame was sent before the report: take it in now
+            return ""
         self._wait(ns, answered, republish=True)
         if self._send_time is not None:
             self._send_time(ns)

@@ -1,8 +1,9 @@
 """The rig_sim node in lock-step, as a real process: /clock out, the chain's answers in.
 
 This test process plays the chain: on each ``/clock`` it publishes a ``pressure_command`` and a
-``clutch_estimate`` stamped with it and sends a PumpRequest frame on the rig's udp_multicast
-group (as controller, estimator and bridge do). While it answers, the rig's clock advances in
+``clutch_estimate`` stamped with it, sends a PumpRequest frame on the rig's udp_multicast
+group and reports that frame on ``pump_request`` with the command's stamp and torques (as
+controller, estimator and bridge do). While it answers, the rig's clock advances in
 exact 10 ms ticks from a whole-second epoch, with one RigSpeed frame per tick; when it stops
 answering, the rig waits (its clock stands almost still) and reports the expired waits on
 /diagnostics; when it answers again, the rig runs on. Nothing here depends on how fast the
@@ -64,6 +65,7 @@ def test_lockstep_rig_waits_for_the_chain_and_counts_expired_waits(tmp_path):
                 counter = [0]
                 cmd_pub = h.node.create_publisher(PressureCommand, "pressure_command", 10)
                 est_pub = h.node.create_publisher(ClutchEstimate, "clutch_estimate", 10)
+                applied_pub = h.node.create_publisher(PressureCommand, "pump_request", 10)
 
                 def on_clock(msg) -> None:
                     clocks.append(_ns(msg.clock))
@@ -71,8 +73,10 @@ def test_lockstep_rig_waits_for_the_chain_and_counts_expired_waits(tmp_path):
                         return
                     cmd = PressureCommand()
                     cmd.header.stamp = msg.clock
+                    cmd.requested_torque = float(len(clocks))
                     cmd_pub.publish(cmd)
                     sender.send(codec.encode(0.0, counter[0]))
+                    applied_pub.publish(cmd)  # the bridge's report of the command's frame
                     counter[0] = (counter[0] + 1) % 16
                     est = ClutchEstimate()
                     est.header.stamp = msg.clock
