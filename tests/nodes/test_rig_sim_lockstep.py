@@ -32,6 +32,11 @@ def _ns(stamp) -> int:
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
+def _level(level) -> int:
+    """Return a DiagnosticStatus level as an int (rclpy gives constants and fields as bytes)."""
+    return level[0] if isinstance(level, bytes) else int(level)
+
+
 def _timeouts(diags) -> list[tuple[int, int]]:
     """(level, lockstep_timeouts) of each /rig_sim status received."""
     out = []
@@ -39,8 +44,7 @@ def _timeouts(diags) -> list[tuple[int, int]]:
         for st in array.status:
             if st.name == "/rig_sim":
                 kv = {v.key: v.value for v in st.values}
-                level = st.level[0] if isinstance(st.level, bytes) else int(st.level)
-                out.append((level, int(float(kv["lockstep_timeouts"]))))
+                out.append((_level(st.level), int(float(kv["lockstep_timeouts"]))))
     return out
 
 
@@ -96,7 +100,7 @@ def test_lockstep_rig_waits_for_the_chain_and_counts_expired_waits(tmp_path):
                 h.spin_for(2.0)
                 # each tick now waits TIMEOUT twice (answer, estimate): a few ticks at most
                 assert len(set(clocks)) - before <= 2.0 / (2 * TIMEOUT) + 2
-                h.spin_until(lambda: any(lvl == DiagnosticStatus.WARN and n > 0
+                h.spin_until(lambda: any(lvl == _level(DiagnosticStatus.WARN) and n > 0
                                          for lvl, n in _timeouts(diags)), 30.0,
                              "a WARN with the expired waits")
 
