@@ -21,19 +21,32 @@ Second baseline, same run: the parallelism the machine offers right now. A fixed
 CPU loop is run four times serially and by two worker processes; on an idle 2-core machine
 that ratio is ~0.5, on a machine whose cores are busy with other work it approaches 1, and
 ``--jobs`` cannot do better than it.
+
+CPU figures, for a shared machine (where wall time includes waiting for a core): the CPU
+seconds summed over the replay process and its workers (``--jobs N`` against the one-core
+``--no-stream`` run), and the critical path: the parent's own CPU (start-up, set-up, the
+results; all counted as serial, an upper bound) plus the busiest worker's CPU. On an idle
+N-core machine the ``--jobs N`` wall time is about the critical path, so
+``critical path / one-core CPU`` predicts the wall ratio. Each worker's CPU is sampled from
+``/proc/PID/stat`` every few milliseconds while it runs (Linux; the last few milliseconds of
+a worker are missed and counted as the parent's, which makes the critical path longer).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
+import subprocess
+import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from benchmarks.bag_replay import generate_bag
-from benchmarks.replay_process import run_process
+from benchmarks.replay_process import ProcessRun, run_process
 
 __all__ = ["TARGET_RATIO", "main"]
 
@@ -60,6 +73,56 @@ def spare_parallelism(jobs: int) -> float:
     with ProcessPoolExecutor(jobs) as pool:
         list(pool.map(_spin, range(2 * jobs)))
     return (time.perf_counter() - start) / serial
+
+
+#: Seconds between two samples of the workers' CPU times.
+_POLL_S = 0.005
+
+
+def _proc_cpu(pid: int) -> tuple[int, float] | None:
+    """Return ``(parent pid, user + system CPU [s])`` of ``pid`` from /proc, None if gone."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            stat = f.read()
+    except OSError:
+        return None
+    fields = stat[stat.rindex(")") + 2:].split()  # after "pid (comm) "
+    tick = os.sysconf("SC_CLK_TCK")
+    return int(fields[1]), (int(fields[11]) + int(fields[12])) / tick
+
+
+def run_polled(args: list[str], timeout: float = 1800.0) -> tuple[ProcessRun, list[float]]:
+    """Run ``python ARGS`` like :func:`run_process`; also return each child's CPU [s].
+
+    The child processes of the replay (its pool workers) are found and sampled in /proc
+    every :data:`_POLL_S` while the replay runs; each worker's last sample is kept.
+    """
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    workers: dict[int, float] = {}
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen([sys.executable, *args], stdout=out, stderr=err, text=True,
+                                env=env)
+        while proc.poll() is None:
+            if time.perf_counter() - start > timeout:
+                proc.kill()
+                proc.wait()
+                raise RuntimeError(f"{' '.join(args)} timed out after {timeout} s")
+            for name in os.listdir("/proc"):
+                if name.isdigit() and (found := _proc_cpu(int(name))) is not None:
+                    if found[0] == proc.pid:
+                        workers[int(name)] = found[1]
+            time.sleep(_POLL_S)
+        wall = time.perf_counter() - start
+        out.seek(0)
+        err.seek(0)
+        stdout, stderr = out.read(), err.read()
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(args)} failed ({proc.returncode}): {stderr[-500:]}")
+    return ProcessRun(wall, cpu, proc.returncode, stdout, stderr), sorted(workers.values())
 
 
 def _figures(run) -> list[dict]:
@@ -90,19 +153,28 @@ def main(argv: list[str] | None = None) -> int:
         generate_bag(tiny, 0.1)
         best: dict[str, object] = {}
         spare = []
+        polled: list[tuple[float, list[float]]] = []  # (CPU, per-worker CPU) of --jobs runs
         variants = {"serial": cmd, "one_core": [*cmd, "--no-stream"],
                     "parallel": [*cmd, "--jobs", str(args.jobs)],
                     "startup": [*cmd[:3], str(tiny), *cmd[3 + len(bags):]]}
         for _ in range(max(args.repeat, 1)):
             spare.append(spare_parallelism(args.jobs))
             for key, argv_ in variants.items():  # in turn, each kept at its fastest
-                run = run_process(argv_)
+                if key == "parallel":
+                    run, worker_cpu = run_polled(argv_)
+                    polled.append((run.cpu_s, worker_cpu))
+                else:
+                    run = run_process(argv_)
                 if key not in best or run.wall_s < best[key].wall_s:
                     best[key] = run
         serial, parallel, one_core = best["serial"], best["parallel"], best["one_core"]
         identical = _figures(serial) == _figures(parallel) == _figures(one_core)
         samples = sum(r["samples"] for r in serial.json())
     ratio = parallel.wall_s / serial.wall_s
+    # CPU: the --jobs run of least total CPU; its parent's own CPU is all counted as serial
+    total_cpu, worker_cpu = min(polled, key=lambda p: p[0])
+    parent_cpu = total_cpu - sum(worker_cpu)
+    critical = parent_cpu + max(worker_cpu, default=0.0)
     # what --jobs could reach at best: the start-up once, the bags' one-core time shared out
     startup = best["startup"].wall_s
     ideal = startup + (one_core.wall_s - startup) / args.jobs
@@ -112,7 +184,11 @@ def main(argv: list[str] | None = None) -> int:
            "parallel_wall_s": parallel.wall_s, "parallel_cpu_s": parallel.cpu_s,
            "ratio": ratio, "ratio_one_core": parallel.wall_s / one_core.wall_s,
            "ideal_ratio": ideal / serial.wall_s, "identical": identical,
-           "cpu_loop_ratio": min(spare)}
+           "cpu_loop_ratio": min(spare), "one_core_cpu_s": one_core.cpu_s,
+           "parallel_total_cpu_s": total_cpu, "parallel_parent_cpu_s": parent_cpu,
+           "parallel_worker_cpu_s": worker_cpu, "critical_path_cpu_s": critical,
+           "cpu_ratio_total": total_cpu / one_core.cpu_s,
+           "cpu_ratio_critical": critical / one_core.cpu_s}
     if args.json:
         print(json.dumps(doc))
         return 0
@@ -130,6 +206,12 @@ def main(argv: list[str] | None = None) -> int:
           f"{ideal:.2f} s = {ideal / serial.wall_s:.2f}x serial")
     print(f"baseline: pure-Python CPU loop, {args.jobs} processes vs serial: "
           f"{min(spare):.2f}x (best of {len(spare)}; the parallelism this machine has to spare)")
+    print(f"CPU --jobs {args.jobs}: total {total_cpu:.2f} s = {total_cpu / one_core.cpu_s:.2f}x "
+          f"the one-core CPU {one_core.cpu_s:.2f} s; parent {parent_cpu:.2f} s, workers "
+          + ", ".join(f"{w:.2f}" for w in worker_cpu) + " s")
+    print(f"CPU critical path (parent + busiest worker) {critical:.2f} s = "
+          f"{critical / one_core.cpu_s:.2f}x the one-core CPU (~ the wall ratio on an idle "
+          f"{args.jobs}-core machine; issue 23's target <= 0.6x)")
     print(f"ratio {ratio:.2f}x serial (target <= {TARGET_RATIO:g}x: "
           f"{'met' if ratio <= TARGET_RATIO else 'NOT MET'}); per-bag figures identical: "
           f"{'yes' if identical else 'NO'}")

@@ -15,7 +15,9 @@ progress line) and when it ends (the line after it), and prints per node:
   controller (counted from the demo's bag within the window);
 
 and the chain's total (can_bridge + estimator + controller) against the budget, 0.25 core
-(issue 23). ``--json`` prints the figures as JSON. Figures depend on machine load.
+(issue 23). ``--one-process`` runs the chain as one process (``clutch demo --one-process``,
+as ``clutch up --one-process``): its row ``composed`` is the chain. ``--json`` prints the
+figures as JSON. Figures depend on machine load.
 """
 
 from __future__ import annotations
@@ -36,12 +38,14 @@ __all__ = ["CHAIN", "NODES", "main", "node_pids", "read_cpu"]
 
 NODES = ("rig_sim", "can_bridge", "estimator", "controller")
 CHAIN = ("can_bridge", "estimator", "controller")
+#: ``--one-process``: the chain runs as one process (``clutch demo --one-process``)
+ONE_PROCESS_NODES = ("rig_sim", "composed")
 ECHO = "echo (baseline)"
 BUDGET = 0.25  # [core] can_bridge + estimator + controller, issue 23
 #: topic whose messages each node handles (per-message figure)
 PER_MESSAGE_TOPIC = {"can_bridge": "/rig_state", "estimator": "/rig_state",
                      "controller": "/pressure_command", ECHO: "/rig_state",
-                     "rig_sim": "/rig_state"}
+                     "rig_sim": "/rig_state", "composed": "/rig_state"}
 _TICKS = os.sysconf("SC_CLK_TCK")
 #: the demo's progress line, ``[  0.0/48.0 s] request ...`` (not a node's ``[INFO] [...`` log)
 _PROGRESS = re.compile(r"\[\s*[\d.]+/[\d.]+ s\]")
@@ -133,8 +137,15 @@ class _Run:
                 self.ended.set()
 
 
-def measure(quick: bool, output: Path, demo_args: list[str]) -> dict:
-    """Run the demo with the echo node beside it; return the figures (module docstring)."""
+def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool = False) -> dict:
+    """Run the demo with the echo node beside it; return the figures (module docstring).
+
+    ``one_process``: the demo's ``--one-process``; the chain is then the one process
+    ``composed`` (its CPU is the chain's; per node it cannot be split).
+    """
+    node_names = ONE_PROCESS_NODES if one_process else NODES
+    chain_names = ("composed",) if one_process else CHAIN
+    demo_args = [*demo_args, *(["--one-process"] if one_process else [])]
     cmd = [sys.executable, "-m", "clutch_ros.cli", "demo", "--json", "--no-plots",
            "-o", str(output), *(["--quick"] if quick else []), *demo_args]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -151,7 +162,7 @@ def measure(quick: bool, output: Path, demo_args: list[str]) -> dict:
     run.on_end = lambda: sample("end")
     try:
         deadline = time.monotonic() + 90.0
-        while run.domain is None or len(pids) < len(NODES):  # the demo starts its nodes
+        while run.domain is None or len(pids) < len(node_names):  # the demo starts its nodes
             if run.proc.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError("the demo did not start its nodes:\n" + "\n".join(run.lines))
             if run.domain is not None:
@@ -185,7 +196,7 @@ def measure(quick: bool, output: Path, demo_args: list[str]) -> dict:
     rig_time = (t1 - t0) - lost
     counts = _count_messages(Path(summary["bag"]), w0, w1)
     nodes = {}
-    for name in (*NODES, ECHO):
+    for name in (*node_names, ECHO):
         a, b = cpu0.get(name), cpu1.get(name)
         if a is None or b is None:
             raise RuntimeError(f"{name}: process gone before the end of the window")
@@ -193,7 +204,7 @@ def measure(quick: bool, output: Path, demo_args: list[str]) -> dict:
         nodes[name] = {"pid": pids[name], "cpu_s": b - a, "cpu_core": (b - a) / rig_time,
                        "messages": n, "topic": PER_MESSAGE_TOPIC[name],
                        "cpu_per_message_ms": (b - a) / n * 1e3 if n else float("nan")}
-    chain = sum(nodes[name]["cpu_core"] for name in CHAIN)
+    chain = sum(nodes[name]["cpu_core"] for name in chain_names)
     return {"rig_time_s": rig_time, "rig_lost_time_s": lost, "nodes": nodes,
             "chain_core": chain, "budget_core": BUDGET, "within_budget": chain <= BUDGET,
             "demo": {k: summary.get(k) for k in ("steady_state_error", "within_10pct",
@@ -205,13 +216,16 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="the demo's short profile")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    parser.add_argument("--one-process", action="store_true",
+                        help="bridge, estimator and controller in one process (clutch demo "
+                             "--one-process); the chain row is that process")
     parser.add_argument("--keep", help="run directory to keep (default: a temporary one)")
     parser.add_argument("--demo-arg", action="append", default=[],
                         help="extra argument for clutch demo (repeatable)")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="live_cpu-") as tmp:
         out = Path(args.keep) if args.keep else Path(tmp) / "demo"
-        res = measure(args.quick, out, args.demo_arg)
+        res = measure(args.quick, out, args.demo_arg, args.one_process)
     if args.json:
         print(json.dumps(res, indent=2, sort_keys=True))
         return 0

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Regenerate (or check) the golden regression data in ``tests/data/golden``.
 
-The golden bags are RigState streams of the simulated rig (truth plant ``rig_truth``, no bus)
+The golden bags are RigState streams of the simulated rig (truth plant ``rig_truth_elastic``:
+``rig_truth`` behind an elastic drivetrain, no bus)
 for thesis Table 3 (sequences 1-5 at 10 and 30 rpm) and Table 4 (sequences 1-4), decimated
 to 100 Hz. The expected outputs are what ``clutch replay BAG --params flexiforce_8`` gives.
 
@@ -102,6 +103,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1 if diffs else 0
     meta = {
         "preset": golden.PRESET,
+        "plant": golden.PLANT,
         "params": {k: v for k, v in sorted(load_flat(preset).items())},
         "rate_hz": golden.RATE_HZ,
         "runs_spec": {name: list(GOLDEN_RUNS[name]) for name in GOLDEN_RUNS},

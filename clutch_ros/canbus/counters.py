@@ -218,10 +218,17 @@ class PublishPacer:
     publishes at once, so a RigState leaves with the frame's latency instead of waiting for a
     timer. A token bucket (``rate`` [1/s], bursts of ``burst``) caps the average rate without
     losing a sample to jitter when frames come exactly at ``rate``. While the trigger frame is
-    missing, any frame in ``fallback`` publishes once ``2 / rate`` s passed since the last
-    attempt, so the topic degrades to half the rate instead of stopping. A frame held back by
-    the cap leaves the pacer ``pending``: :meth:`flush`, called from a slow timer, publishes
-    it once the cap allows, so the last state before the bus goes quiet is never withheld.
+    missing, any frame in ``fallback`` publishes once rig frames have been arriving for
+    ``2 / rate`` s without a trigger (counted from the first frame after the last publication
+    attempt), so the topic degrades to half the rate instead of stopping. The count starts at
+    a frame, not at the last attempt: after a pause of the whole bus (a stalled rig, a busy
+    PC) the cycle's first frames are no "missing trigger" -- its trigger is still to come, and
+    publishing before it would send a sample half of whose signals are a cycle old. The same
+    holds for a pause within a cycle: a gap of more than ``1 / rate`` s between two rig frames
+    is a pause, not frames flowing, so the count starts over at the frame after it. A frame
+    held back by the cap leaves the pacer ``pending``: :meth:`flush`, called from a slow
+    timer, publishes it once the cap allows, so the last state before the bus goes quiet is
+    never withheld.
     ``trigger`` None: frames never publish and :meth:`flush` is the ``rate`` timer's
     decision. Times [s] are passed by the caller, in the bus's time base (the frames'
     timestamps), so a burst of frames read late is paced as the bus sent it; a time that
@@ -236,6 +243,10 @@ class PublishPacer:
         self.rate, self.trigger, self.fallback, self.burst = rate, trigger, fallback, burst
         self._tokens = burst
         self._last: float | None = None
+        # bus time [s] of the first rig frame since the last publication attempt: frames
+        # flowing for 2 / rate s from here without a trigger mean the trigger is missing
+        self._flowing_since: float | None = None
+        self._last_frame: float | None = None  # bus time [s] of the last rig frame counted
         #: a frame was held back by the rate cap and not published since
         self.pending = False
 
@@ -243,12 +254,20 @@ class PublishPacer:
         """Return True when the frame with ``key`` arriving at ``now`` should publish."""
         if self.trigger is None:
             return False
-        if key == self.trigger or (key in self.fallback and (
-                self._last is None or (now - self._last) * self.rate > 2.0)):
-            allowed = self.take(now)
-            self.pending = not allowed
-            return allowed
-        return False
+        if key != self.trigger:
+            if key not in self.fallback:
+                return False
+            last, self._last_frame = self._last_frame, now
+            if (self._flowing_since is None or now < self._flowing_since
+                    or last is None or (now - last) * self.rate > 1.0):
+                # (a time going back: a new log starts over; a pause: the trigger decides)
+                self._flowing_since = now
+            if (now - self._flowing_since) * self.rate <= 2.0:
+                return False
+        self._flowing_since = None
+        allowed = self.take(now)
+        self.pending = not allowed
+        return allowed
 
     def flush(self, now: float) -> bool:
         """Timer decision at ``now``: publish a pending frame (or, without trigger, any)."""

@@ -76,6 +76,8 @@ LOCKSTEP_BRIDGE_RATE = 200.0
 
 #: SCHED_FIFO priorities of the run's processes (1..99, higher preempts lower): the world
 #: first, then the bridge (CAN frames queue in its socket), then the model and the driver.
+#: the process name of can_bridge + estimator + controller with ``--one-process``
+CHAIN = "chain"
 RT_PRIORITY = {"rig_sim": 40, "can_bridge": 35, "estimator": 30, "controller": 30, "cli": 30}
 
 
@@ -114,6 +116,9 @@ def add_parser(sub) -> None:
                         "busy the machine is (implies --no-realtime; rig_state at 100 Hz, "
                         "--rate does not apply)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    p.add_argument("--one-process", action="store_true",
+                   help="can_bridge, estimator and controller in one process (process "
+                        "'chain', as clutch up --one-process)")
     p.set_defaults(func=run)
 
 
@@ -179,6 +184,8 @@ def run(args) -> int:
              "connection -> Foxglove WebSocket; layout params/clutch_dashboard.json)")
     procs = []
     wall_start = time.monotonic()
+    if getattr(args, "one_process", False):
+        specs = _one_process(specs)
     try:
         for name, node_args in specs.items():
             # The simulated rig stands in for hardware that keeps real time whatever the PC
@@ -186,8 +193,9 @@ def run(args) -> int:
             # nodes under test share this process's. On a 2-core machine with each node in a
             # session of its own, five equal shares of ~40 % left the rig (~40 % of a core at
             # 1 kHz) short, and it dropped 3-10 s of a 30 s run: a slowed world.
-            procs.append(NodeProcess(name, ["--ros-args", *node_args], env, out / "logs",
-                                     own_session=name == "rig_sim"))
+            cmd = node_args if name == CHAIN else ["--ros-args", *node_args]
+            procs.append(NodeProcess(name, cmd, env, out / "logs", own_session=name == "rig_sim",
+                                     executable="composed" if name == CHAIN else None))
         if not args.no_realtime:  # this process's driver and recorder (DDS threads inherit)
             report = apply_realtime(RealtimeSettings("fifo", RT_PRIORITY["cli"]))
             if report.refused:
@@ -209,7 +217,8 @@ def run(args) -> int:
     if args.lockstep:
         summary["lockstep_timeouts"] = rig_diagnostic(out / "bag", "lockstep_timeouts")
     # True when every process of the chain ran at SCHED_FIFO (policy per process alongside)
-    summary["realtime"] = all(policies.get(name) == "fifo" for name in RT_PRIORITY)
+    summary["realtime"] = all(policies.get(name, policies.get(CHAIN)) == "fifo"
+                              for name in RT_PRIORITY)
     summary["scheduling"] = policies
     if args.dashboard:
         summary["dashboard"] = f"ws://127.0.0.1:{args.dashboard_port}"
@@ -219,6 +228,15 @@ def run(args) -> int:
     else:
         _print_summary(summary)
     return 0
+
+
+def _one_process(specs: dict[str, list[str]]) -> dict[str, list[str]]:
+    """``--one-process``: the chain's node arguments as one ``composed`` command line."""
+    from clutch_ros.nodes.composed import composed_args
+
+    members = [(n, ["--ros-args", *specs.pop(n)]) for n in ("can_bridge", "estimator",
+                                                            "controller")]
+    return {**specs, CHAIN: composed_args(members)}
 
 
 def _rated_torque(params) -> float:

@@ -17,6 +17,11 @@ of its own, as ``ros2 launch`` does (``<log dir>/params/``). ``--print`` lists t
 command lines and exits (parameter files in ``<log dir>/params`` with ``--log-dir``, else in a
 new ``/tmp/clutch_up_params_*``; ``--json``: also each node's resulting parameters and
 respawn settings).
+
+``--one-process`` runs can_bridge, estimator and controller in one process and one executor
+(:mod:`clutch_ros.nodes.composed`, log ``<log dir>/chain.log``) for a PC that wants fewer
+processes and context switches; the other nodes (rig_sim, recorder, ...) keep their own.
+The separate-process layout stays the default.
 """
 
 from __future__ import annotations
@@ -40,7 +45,8 @@ from clutch_ros.config.launch_file import (
     parse_overrides,
 )
 
-__all__ = ["NODE_EXECUTABLES", "add_parser", "resolve_launch_file", "run"]
+__all__ = ["CHAIN_NODES", "NODE_EXECUTABLES", "ComposedEntry", "add_parser", "one_process",
+           "resolve_launch_file", "run"]
 
 #: Executables this package installs (``setup.py`` NODES; a test keeps the two equal); each
 #: runs as ``python -m clutch_ros.nodes.<name>``.
@@ -65,6 +71,9 @@ def add_parser(sub) -> None:
                    help="list the launch file's arguments and exit")
     p.add_argument("--json", action="store_true",
                    help="with --print: the nodes as JSON on stdout")
+    p.add_argument("--one-process", action="store_true",
+                   help="can_bridge, estimator and controller in one process and one "
+                        "executor (default: a process per node)")
     p.set_defaults(func=run)
 
 
@@ -119,6 +128,9 @@ def run(args) -> int:
             sys.stdout.write(f"{arg.name}: {arg.description} [{default}]\n")
         return 0
     _check(description)
+    nodes: list = list(description.nodes)
+    if getattr(args, "one_process", False):
+        nodes = one_process(nodes)
     if args.print_only:
         param_dir = (Path(args.log_dir) / "params" if args.log_dir  # kept, as launch does
                      else Path(tempfile.mkdtemp(prefix="clutch_up_params_")))
@@ -126,7 +138,7 @@ def run(args) -> int:
             {"name": n.full_name, "executable": n.executable, "args": n.ros_args(param_dir),
              "parameters": n.parameters(), "respawn": n.respawn,
              "respawn_delay": n.respawn_delay, "respawn_max_retries": n.respawn_max_retries}
-            for n in description.nodes]
+            for n in nodes]
         if args.json:
             emit_json(commands)
         else:
@@ -139,7 +151,7 @@ def run(args) -> int:
     code = 0
     try:
         env = node_env()
-        for node in description.nodes:
+        for node in nodes:
             running.append(_Running(node, env, log_dir))
             running[-1].start()
         _say(f"{len(running)} nodes running from {path}; Ctrl-C stops them")
@@ -160,11 +172,53 @@ def run(args) -> int:
     return code
 
 
+#: the nodes ``--one-process`` runs together (clutch_ros.nodes.composed)
+CHAIN_NODES = ("can_bridge", "estimator", "controller")
+
+
+class ComposedEntry:
+    """The chain's nodes as one launch entry: one ``composed`` process (``--one-process``).
+
+    Behaves as a :class:`NodeEntry` for the supervisor; respawned only when every node in it
+    asks for it (then with the longest delay and the fewest retries of them).
+    """
+
+    executable = "composed"
+
+    def __init__(self, members: list[NodeEntry]) -> None:
+        self.members = members
+        self.full_name = "+".join(n.full_name for n in members)
+        self.respawn = all(n.respawn for n in members)
+        self.respawn_delay = max(n.respawn_delay for n in members)
+        limits = [n.respawn_max_retries for n in members if n.respawn_max_retries >= 0]
+        self.respawn_max_retries = min(limits) if limits else -1
+
+    def ros_args(self, param_dir: Path) -> list[str]:
+        """Return the ``composed`` command line: each member's ROS arguments after --node."""
+        from clutch_ros.nodes.composed import composed_args  # (the CLI imports no rclpy early)
+
+        return composed_args([(n.executable, n.ros_args(param_dir)) for n in self.members])
+
+    def parameters(self) -> dict[str, Any]:
+        """Each member's parameters, by its full name."""
+        return {n.full_name: n.parameters() for n in self.members}
+
+
+def one_process(nodes: list) -> list:
+    """Replace the chain's nodes (:data:`CHAIN_NODES`) by one :class:`ComposedEntry`."""
+    chain = [n for n in nodes if n.executable in CHAIN_NODES]
+    if len(chain) < 2:
+        return nodes
+    at = nodes.index(chain[0])
+    rest = [n for n in nodes if n.executable not in CHAIN_NODES]
+    return [*rest[:at], ComposedEntry(chain), *rest[at:]]
+
+
 @dataclass
 class _Running:
     """A launched node: its current process, and when it is due to be respawned."""
 
-    node: NodeEntry
+    node: NodeEntry | ComposedEntry
     env: dict
     log_dir: Path
     proc: NodeProcess | None = None
@@ -173,7 +227,8 @@ class _Running:
 
     def start(self) -> None:
         name = self.node.full_name
-        self.proc = NodeProcess(name.strip("/").replace("/", "."),
+        log_name = "chain" if isinstance(self.node, ComposedEntry) else name
+        self.proc = NodeProcess(log_name.strip("/").replace("/", "."),
                                 self.node.ros_args(self.log_dir / "params"),
                                 self.env, self.log_dir, executable=self.node.executable)
         self.restart_at = None

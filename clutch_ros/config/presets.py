@@ -26,6 +26,7 @@ PRESETS = {
     "test_b": "test_b_sintered10.yaml",
     "rig_truth": "rig_truth.yaml",
     "rig_test_a": "rig_test_a.yaml",
+    "rig_truth_elastic": "rig_truth_elastic.yaml",
 }
 DBC_NAME = "rig.dbc"
 #: The Foxglove layout shipped in params/.

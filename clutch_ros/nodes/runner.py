@@ -40,7 +40,8 @@ from clutch_ros.nodes.realtime import (
     declare_realtime,
 )
 
-__all__ = ["DEFAULT_EXECUTOR", "EVENTS_WARNING", "make_executor", "run_node", "start_realtime"]
+__all__ = ["DEFAULT_EXECUTOR", "EVENTS_WARNING", "executor_option", "make_executor", "run_node",
+           "run_nodes", "start_realtime"]
 
 
 #: Executor the nodes spin by default. SingleThreadedExecutor: measured by
@@ -57,17 +58,25 @@ EVENTS_WARNING = ("--executor events is experimental: with the rclpy 9.1.2 wheel
 
 
 def make_executor(kind: str = DEFAULT_EXECUTOR):
-    """Return a new ``single`` (SingleThreadedExecutor) or ``events`` (EventsExecutor)."""
+    """Return a new ``single``, ``lean`` or ``events`` executor.
+
+    ``single``: rclpy's SingleThreadedExecutor; ``lean``: :mod:`lean_executor`; ``events``:
+    rclpy's EventsExecutor.
+    """
+    if kind == "lean":
+        from clutch_ros.nodes.lean_executor import LeanExecutor
+
+        return LeanExecutor()
     if kind == "events":
         from rclpy.experimental import EventsExecutor  # experimental: loaded only when chosen
 
         return EventsExecutor()
     if kind == "single":
         return SingleThreadedExecutor()
-    raise ValueError(f"unknown executor {kind!r} (single or events)")
+    raise ValueError(f"unknown executor {kind!r} (single, lean or events)")
 
 
-def _executor_option(argv: list[str]) -> tuple[str, list[str]]:
+def executor_option(argv: list[str]) -> tuple[str, list[str]]:
     """Take ``--executor KIND`` (before ``--ros-args``) out of ``argv``."""
     kind = DEFAULT_EXECUTOR
     out: list[str] = []
@@ -126,13 +135,24 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
     if help_requested(argv):
         sys.stdout.write(format_help(name, doc, [*specs, *REALTIME_PARAMS]))
         return 0
-    executor_kind, argv = _executor_option(argv)
+    executor_kind, argv = executor_option(argv)
+    return run_nodes(name, [factory], argv, executor_kind)
+
+
+def run_nodes(name: str, factories: Sequence[Callable[[], Node]], argv: Sequence[str],
+              executor_kind: str = DEFAULT_EXECUTOR) -> int:
+    """Init rclpy with ``argv``, build each node and spin them all in one executor.
+
+    :func:`run_node` for one node; :mod:`clutch_ros.nodes.composed` for several in one
+    process. Exit codes and the handling of signals and bad settings as :func:`run_node`;
+    the nodes are closed and destroyed in reverse build order.
+    """
     # rclpy's own handlers (SignalHandlerOptions.ALL, the default) turn SIGINT and SIGTERM
     # into a clean shutdown even while the executor waits in C; Python's only take note
     # (module docstring: a KeyboardInterrupt inside rclpy's C++ was an exit 1)
     stop = _StopSignals()
     rclpy.init(args=[sys.argv[0], *argv])
-    node: Node | None = None
+    nodes: list[Node] = []
     started = False
     try:
         if stop.received:  # stopped before rclpy's handlers were there to do it
@@ -141,21 +161,23 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
         # thread while it is being built (bag_player on a bad bag), and an executor made on
         # an ended context fails half-built (its __del__ then prints a traceback)
         executor = make_executor(executor_kind)
-        node = factory()
-        if stop.received:  # (the context is shut down: nothing to spin)
-            return 0
-        realtime = start_realtime(node)
+        for factory in factories:
+            nodes.append(factory())
+            if stop.received:  # (the context is shut down: nothing to spin)
+                return 0
+        realtime = [start_realtime(node) for node in nodes]
         started = True
         # everything built so far lives as long as the node: out of the collector's sight, so
         # a full collection (every ~10^5 allocations at 1 kHz) does not walk the imported
         # modules and the message classes in the middle of a callback (latency tail)
         gc.collect()
         gc.freeze()
-        if executor_kind == "events":
-            node.get_logger().warning(EVENTS_WARNING)
-        executor.add_node(node)
+        for node in nodes:
+            if executor_kind == "events":
+                node.get_logger().warning(EVENTS_WARNING)
+            executor.add_node(node)
         executor.spin()
-        del realtime  # its /diagnostics timer lived as long as the spin
+        del realtime  # its /diagnostics timers lived as long as the spin
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
@@ -173,7 +195,7 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
         sys.stderr.write(f"{name}: error: {err}\n")
         return 2
     finally:
-        if node is not None:
+        for node in reversed(nodes):
             close = getattr(node, "close", None)
             if close is not None:
                 close()

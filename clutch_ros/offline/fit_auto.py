@@ -168,6 +168,11 @@ def fit_auto(runs, validation_runs, base: ClutchParams, *, laws: Sequence[str] =
              compliance: bool = False) -> AutoFitResult:
     """Fit each law on ``runs``, score it on ``validation_runs`` (module docstring)."""
     targets = list(validation_runs) or list(runs)
+    names = [r.name for r in targets]
+    shared = sorted({n for n in names if names.count(n) > 1})
+    if shared:  # the table is keyed by run name: two runs of one name would merge silently
+        raise IdentificationError(f"validation runs share the name(s) {', '.join(shared)}: "
+                                  "give each bag a distinct directory name")
     scores = []
     for law in laws:
         keys = free_keys(law, runs, fixed, compliance=compliance)

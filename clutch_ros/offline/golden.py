@@ -30,6 +30,7 @@ from clutch_ros.offline.rig_runs import GOLDEN_RUNS, golden_scenario, simulate_r
 
 __all__ = [
     "FIELDS",
+    "PLANT",
     "PRESET",
     "RATE_HZ",
     "SUMMARY_KEYS",
@@ -47,6 +48,10 @@ __all__ = [
 
 #: Estimator preset the expected outputs are computed with.
 PRESET = "flexiforce_8"
+#: Truth plant of the golden bags: the rig's truth plant behind its elastic drivetrain, so the
+#: runs show the torque build-up and the stuck clutch of the thesis's rig (the preset's header
+#: says why; a rigid plant cannot show either).
+PLANT = "rig_truth_elastic"
 #: Sample rate of the golden bags [Hz] (the rig simulates at 1 kHz; every 10th sample kept).
 RATE_HZ = 100.0
 #: Per-sample outputs stored for every run.
@@ -89,7 +94,8 @@ def generate_bags(root: str | Path, names: Iterable[str] | None = None) -> list[
     out = []
     for name in names or GOLDEN_RUNS:
         scenario, seed = golden_scenario(name)
-        run = simulate_run(scenario, seed=seed, rate_hz=RATE_HZ, wheel_speeds=False)
+        run = simulate_run(scenario, seed=seed, rate_hz=RATE_HZ, plant=PLANT,
+                           wheel_speeds=False)
         run.columns["ff_voltages"] = np.zeros((len(run), 0))  # not read by the estimator
         path = bag_path(root, name)
         if path.exists():

@@ -25,3 +25,16 @@ def test_bench_prints_every_node_per_second_and_per_message(capsys, tmp_path):
     assert math.isclose(res["chain_core"], chain)
     assert res["within_budget"] == (chain <= res["budget_core"])
     assert (tmp_path / "run" / "bag").is_dir()  # --keep keeps the demo's run directory
+
+
+def test_bench_one_process_measures_the_chain_as_one_process(capsys, tmp_path):
+    """--one-process: the demo runs bridge, estimator and controller as one process."""
+    assert bench.main(["--quick", "--json", "--one-process", "--keep", str(tmp_path / "r")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert set(res["nodes"]) == {*bench.ONE_PROCESS_NODES, bench.ECHO}
+    composed = res["nodes"]["composed"]
+    assert composed["messages"] > 0 and composed["cpu_core"] > 0.0
+    assert math.isclose(res["chain_core"], composed["cpu_core"])
+    assert res["demo"]["within_10pct"] > 0.0  # the composed chain controlled the rig
+    logs = {p.name for p in (tmp_path / "r" / "logs").glob("*.log")}
+    assert "chain.log" in logs and "estimator.log" not in logs, logs

@@ -17,7 +17,7 @@ import can
 import msgpack
 
 from clutch_ros.canbus.bus import BusConfig, open_bus
-from clutch_ros.canbus.udp import malformed_reason
+from clutch_ros.canbus.udp import malformed_reason, receive_drops
 
 
 def private_group() -> tuple[str, int]:
@@ -109,6 +109,10 @@ class BusRecorder:
                 self.frames.append(msg)
                 if not (msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id):
                     self._by_id.setdefault(msg.arbitration_id, []).append(msg)
+
+    def drops(self) -> int | None:
+        """Frames the kernel dropped at this recorder's socket (it was starved), or None."""
+        return receive_drops(self.bus)
 
     def of(self, arbitration_id: int) -> list[can.Message]:
         """Return the data frames recorded so far with this (11-bit) identifier."""

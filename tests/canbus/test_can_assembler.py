@@ -265,6 +265,30 @@ def test_publish_pacer_trigger_rate_cap_and_fallback():
     published = sum(pacer.on_frame(fast, 0.001 * k) for k in range(1000))
     assert 45 <= published <= 51
     assert not any(pacer.on_frame(0x7E0, 10.0 + k) for k in range(5))  # not a rig frame
+    # the whole bus pauses (a stalled rig): the next cycle's first frames wait for its
+    # trigger, however long the pause; then the trigger publishes at once
+    pacer = PublishPacer(100.0, speed, frozenset({fast, speed}))
+    assert pacer.on_frame(speed, 1.000)
+    assert not any(pacer.on_frame(fast, 1.500 + 0.001 * k) for k in range(10))  # 10 ms
+    assert pacer.on_frame(speed, 1.510)
+    # a trigger missing after such a pause: the fallback waits 2 / rate of frames flowing
+    assert not any(pacer.on_frame(fast, 3.000 + 0.001 * k) for k in range(20))  # to 3.019
+    assert pacer.on_frame(fast, 3.0201)
+    # a pause within a cycle (issue 23): the bus stalls after the cycle's first frame; the
+    # frames after the pause wait for their trigger however long the pause was
+    pacer = PublishPacer(200.0, speed, frozenset({fast, speed}))
+    assert pacer.on_frame(speed, 1.000)
+    assert not pacer.on_frame(fast, 1.0004)
+    start = 1.0004
+    for pause in (0.0051, 0.011, 0.5):
+        start += pause
+        assert not any(pacer.on_frame(fast, start + 0.0004 * k) for k in range(20)), pause
+        assert pacer.on_frame(speed, start + 0.0081)
+        start += 0.0085
+        assert not pacer.on_frame(fast, start)
+    # frames flowing without the trigger still fall back after 2 / rate, pauses or not
+    assert not any(pacer.on_frame(fast, 3.000 + 0.0004 * k) for k in range(25))  # to 3.0096
+    assert pacer.on_frame(fast, 3.0104)
     # a trigger frame held back by the cap is flushed by the timer once the cap allows
     pacer = PublishPacer(200.0, speed, frozenset({fast, speed}))
     assert pacer.on_frame(speed, 0.0) and pacer.on_frame(speed, 0.0001)  # the burst

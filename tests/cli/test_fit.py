@@ -304,3 +304,37 @@ def test_fit_identifies_the_drivetrain_compliance(elastic_bag, tmp_path, capsys)
     assert rc == 0, err
     assert "drivetrain.stiffness" not in json.loads(out)["values"]
     assert load_params(rigid_file).drivetrain.stiffness == 0.0
+
+
+@pytest.mark.slow
+def test_auto_fit_prints_the_validation_table(tmp_path, capsys):
+    """``clutch fit --law auto --validate`` prints the validation table (issue 24).
+
+    Golden runs (elastic rig; none used to fit): one row per passive law with its ratio (RMSE
+    model / Eq. 1) on every validation run, mean and worst; no passive law worse than Eq. 1.
+    """
+    from tests.conftest import REPO
+
+    bags = REPO / "tests" / "data" / "golden" / "bags"
+    validate = ["table3_seq3_10rpm", "table3_seq1_30rpm", "table4_seq2"]
+    rc, out, err = _run(fit_cmd, [bags / "table4_seq1", bags / "table3_seq2_10rpm", "--law",
+                                  "auto", "--fit-compliance", "--no-pdiff", "--threads", "1",
+                                  "-o", tmp_path / "best.yaml", "--validate",
+                                  *[bags / n for n in validate]], capsys)
+    assert rc == 0, err
+    lines = out.splitlines()
+    head = lines.index("RMSE ratio model / Eq. 1 (same friction law) per validation run:")
+    rows = {}
+    for line in lines[head + 1:head + 5]:
+        law, _, mean, _, worst, *cells = line.split()
+        ratios = dict(cell.split("=") for cell in cells)
+        assert sorted(ratios) == sorted(validate), line
+        ratios = {k: float(v) for k, v in ratios.items()}
+        assert float(mean) == pytest.approx(np.mean(list(ratios.values())), abs=2e-3)
+        assert float(worst) == pytest.approx(max(ratios.values()), abs=1e-3)
+        rows[law] = ratios
+    assert set(rows) == {"none", "ff_t", "ff_v", "coulomb"}
+    for law, ratios in rows.items():
+        assert max(ratios.values()) <= 1.0, (law, ratios)
+    best = lines[head + 5].split()[1]
+    assert best in rows and load_params(tmp_path / "best.yaml").drivetrain.stiffness > 0.0

@@ -136,17 +136,32 @@ def test_bad_command_line_is_one_line_and_exit_2(tmp_path):
         assert done.stderr.count("\n") == 1 and text in done.stderr, (argv, done.stderr)
 
 
+def _up_sim(tmp_path, ros_env, *options: str) -> subprocess.Popen:
+    """Start ``clutch up sim.launch.xml`` on a private multicast group, logs in tmp_path."""
+    group, port = private_group()
+    cmd = [sys.executable, "-m", "clutch_ros.cli", "up", "sim.launch.xml", f"channel:={group}",
+           f"port:={port}", *options, "--log-dir", str(tmp_path / "logs")]
+    return subprocess.Popen(cmd, cwd=tmp_path, env=ros_env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def _sigterm(proc: subprocess.Popen) -> str:
+    """SIGTERM ``proc`` and wait for it (killed after 25 s); return its stderr."""
+    proc.send_signal(signal.SIGTERM)
+    try:
+        return proc.communicate(timeout=25)[1]
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        return proc.communicate()[1]
+
+
 @pytest.mark.ros
 def test_clutch_up_sim_brings_up_the_chain_and_stops_on_sigterm(tmp_path, ros_env):
     from clutch_msgs.msg import ClutchEstimate, RigState
 
     from clutch_ros.nodes.qos import reliable_qos, sensor_qos
 
-    group, port = private_group()
-    cmd = [sys.executable, "-m", "clutch_ros.cli", "up", "sim.launch.xml", f"channel:={group}",
-           f"port:={port}", "--log-dir", str(tmp_path / "logs")]
-    proc = subprocess.Popen(cmd, cwd=tmp_path, env=ros_env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = _up_sim(tmp_path, ros_env)
     try:
         with Harness("up_probe") as h:
             states = h.collect(RigState, "rig_state", sensor_qos())
@@ -154,12 +169,7 @@ def test_clutch_up_sim_brings_up_the_chain_and_stops_on_sigterm(tmp_path, ros_en
             h.spin_until(lambda: len(states) >= 20 and len(estimates) >= 20, 25.0,
                          "rig_state and clutch_estimate from the launched chain")
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            out, err = proc.communicate(timeout=25)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, err = proc.communicate()
+        err = _sigterm(proc)
     assert proc.returncode == 0, err
     pids = [int(p) for p in re.findall(r"pid (\d+)\)", err)]
     names = re.findall(r"started (\S+) \(", err)
@@ -171,6 +181,38 @@ def test_clutch_up_sim_brings_up_the_chain_and_stops_on_sigterm(tmp_path, ros_en
     assert all(e.modelled_torque == e.modelled_torque for e in estimates)  # finite, not NaN
     assert {p.name for p in (tmp_path / "logs").glob("*.log")} == {
         "rig_sim.log", "can_bridge.log", "estimator.log", "controller.log"}
+
+
+@pytest.mark.ros
+def test_clutch_up_one_process_runs_the_chain_in_one_process(tmp_path, ros_env):
+    """--one-process: bridge, estimator and controller in one process; SIGTERM stops all."""
+    from clutch_msgs.msg import ClutchEstimate, PressureCommand
+
+    from clutch_ros.nodes.qos import reliable_qos, sensor_qos
+
+    proc = _up_sim(tmp_path, ros_env, "--one-process")
+    try:
+        with Harness("up_one_probe") as h:
+            estimates = h.collect(ClutchEstimate, "clutch_estimate", reliable_qos())
+            commands = h.collect(PressureCommand, "pressure_command", sensor_qos())
+            h.spin_until(lambda: len(estimates) >= 20 and len(commands) >= 5, 25.0,
+                         "clutch_estimate and pressure_command from the one-process chain")
+            names = {n for n, _ in h.node.get_node_names_and_namespaces()}
+    finally:
+        err = _sigterm(proc)
+    assert proc.returncode == 0, err
+    assert {"can_bridge", "estimator", "controller", "rig_sim"} <= names, names
+    started = re.findall(r"started (\S+) \((\w+), pid (\d+)\)", err)
+    assert [(n, e) for n, e, _ in started] == [
+        ("/rig_sim", "rig_sim"), ("/can_bridge+/estimator+/controller", "composed")], err
+    for _, _, pid in started:  # every process is gone (reaped by clutch up)
+        with pytest.raises(ProcessLookupError):
+            os.kill(int(pid), 0)
+    assert "all nodes stopped (exit code 0)" in err
+    assert all(e.modelled_torque == e.modelled_torque for e in estimates)  # finite, not NaN
+    assert {p.name for p in (tmp_path / "logs").glob("*.log")} == {"rig_sim.log", "chain.log"}
+    log = (tmp_path / "logs" / "chain.log").read_text()
+    assert "Traceback" not in log, log
 
 
 @pytest.mark.ros
@@ -215,3 +257,25 @@ def test_launch_arguments_may_follow_the_options():
     with pytest.raises(SystemExit) as err:  # anything else after the options is still refused
         clutch(["up", "sim.launch.xml", "--print", "bogus"])
     assert err.value.code == 2
+
+
+def test_one_process_print_groups_the_chain_and_bad_composed_args_are_one_line(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "clutch_ros.cli", "up", "sim.launch.xml",
+                           "--one-process", "--print", "--json", "--log-dir", str(tmp_path)],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    import json
+
+    entries = json.loads(done.stdout)
+    assert [e["executable"] for e in entries] == ["rig_sim", "composed"]
+    chain = entries[1]
+    assert chain["name"] == "/can_bridge+/estimator+/controller"
+    assert [a for i, a in enumerate(chain["args"]) if chain["args"][i - 1] == "--node"] == [
+        "can_bridge", "estimator", "controller"]
+    assert chain["parameters"]["/can_bridge"]["can.interface"] == "udp_multicast"
+    for argv, text in ((["--node", "recorder"], "--node recorder: not a composable node"),
+                       (["-p", "x:=1"], "expected --node EXECUTABLE first")):
+        bad = subprocess.run([sys.executable, "-m", "clutch_ros.nodes.composed", *argv],
+                             capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and bad.stderr.count("\n") == 1, bad.stderr
+        assert text in bad.stderr, bad.stderr

@@ -5,7 +5,12 @@ and saved as a parameter file, must lower the RMSE of another run at another tem
 rpm, heating to 57-62 °C, loaded at ~47-50 °C) replayed with the plain (non-adaptive)
 estimator. (The Table 4 runs are not used: since the truth plant has the oil film and the
 preset has none, their error, ~200 N m RMSE, is the film's torque spikes at the slip steps,
-which a friction scale cannot explain; adapted on one, a scale moves the other by +2 %.)
+which a friction scale cannot explain; adapted on one, a scale moves the other by +2 %.
+Nor is the single step at 10 rpm (table3_seq1_10rpm) a training run: the golden rig is elastic,
+so after each step its clutch's own slip drops towards 0 and its friction rises towards the
+static peak, which the estimator, evaluating mu at the measured slip, cannot follow; a scale
+adapted there comes out 1.079 against 1.056 on the 24 s ramp at 10 rpm used here, and the
+truth plant's mu is +6 %.)
 
 Dropout: a golden bag is rewritten with ``has_measured_torque`` false from half way on (a
 real bag, written and read back); the adaptation must freeze there with a diagnostic saying
@@ -44,7 +49,7 @@ def _loaded_temperature(rig):
 
 
 @pytest.mark.parametrize("train,test", [("table3_seq2_10rpm", "table3_seq1_30rpm"),
-                                        ("table3_seq1_10rpm", "table3_seq2_30rpm")])
+                                        ("table3_seq5_10rpm", "table3_seq2_30rpm")])
 def test_adapted_frozen_saved_parameters_improve_another_run(preset, tmp_path, train, test):
     """Adapt on ``train``, save, replay ``test`` (other temperature) frozen: lower RMSE."""
     rig_train, rig_test = read_rig_states(GOLDEN / train), read_rig_states(GOLDEN / test)

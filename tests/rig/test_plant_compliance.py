@@ -57,3 +57,10 @@ def test_rigid_preset_runs_without_compliance():
     assert plant.drive is None
     a = _build_up(10.0, "rig_truth")
     assert a[0] < 0.5  # the stiff rig: the pump and pack time constants only
+
+
+def test_golden_rig_is_elastic_with_the_thesis_delay():
+    """The golden runs' plant (rig_truth made elastic, tests/data/golden) shows the delay too."""
+    delay, final, *_ = _build_up(2.0, "rig_truth_elastic")
+    assert 3.0 <= delay <= 4.0, delay
+    assert final > 1000.0

@@ -1,0 +1,105 @@
+"""LeanExecutor over real DDS: subscriptions, timers, parameter services, entity changes, stop."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+import rclpy
+from clutch_msgs.msg import RigState
+from rcl_interfaces.msg import Parameter, ParameterType, SetParametersResult
+from rcl_interfaces.srv import SetParameters
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+from clutch_ros.nodes.lean_executor import LeanExecutor
+from clutch_ros.nodes.qos import sensor_qos
+from tests.nodes.rclpy_harness import Harness, rig_state
+
+pytestmark = pytest.mark.ros
+
+
+class _Lean(Node):
+    """A node using each entity kind the clutch_ros nodes use."""
+
+    def __init__(self, context):
+        super().__init__("lean_probe_node", context=context)
+        self.received: list = []
+        self.ticks = 0
+        self.late_ticks = 0
+        self.declare_parameter("gain", 1.0)
+        self.add_on_set_parameters_callback(self._on_set)
+        self.create_subscription(RigState, "rig_state", self._on_rig, sensor_qos())
+        self.create_timer(0.02, self._tick)
+
+    def _on_set(self, params):
+        bad = [p for p in params if p.name == "gain" and p.value < 0.0]
+        return SetParametersResult(successful=not bad, reason="gain must be >= 0" if bad else "")
+
+    def _on_rig(self, msg) -> None:
+        self.received.append(msg)
+        if len(self.received) == 3:  # an entity created from a callback joins the wait set
+            self.create_timer(0.02, self._late_tick)
+
+    def _tick(self) -> None:
+        self.ticks += 1
+
+    def _late_tick(self) -> None:
+        self.late_ticks += 1
+
+
+def _set(peer: Harness, value: float):
+    client = peer.node.create_client(SetParameters, "/lean_probe_node/set_parameters")
+    req = SetParameters.Request()
+    req.parameters = [Parameter(name="gain")]
+    req.parameters[0].value.type = ParameterType.PARAMETER_DOUBLE
+    req.parameters[0].value.double_value = value
+    return peer.call(client, req).results[0]
+
+
+def test_lean_executor_runs_every_entity_kind_and_stops_on_context_shutdown():
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    node = _Lean(context)
+    executor = LeanExecutor(context=context)
+    executor.add_node(node)
+    errors: list = []
+
+    def spin() -> None:
+        try:
+            executor.spin()
+        except ExternalShutdownException:
+            pass
+        except Exception as err:  # noqa: BLE001 - reported by the test
+            errors.append(err)
+
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    try:
+        with Harness("lean_peer") as peer:
+            pub = peer.node.create_publisher(RigState, "rig_state", sensor_qos())
+            peer.spin_until(lambda: pub.get_subscription_count() >= 1, 30.0, "the lean node")
+            sent = 0
+
+            def feed() -> bool:
+                nonlocal sent
+                pub.publish(rig_state(sent * 0.01))
+                sent += 1
+                return len(node.received) >= 20 and node.late_ticks >= 3
+
+            peer.spin_until(feed, 30.0, "20 messages and the late timer on the lean node")
+            assert _set(peer, 2.5).successful
+            refused = _set(peer, -1.0)
+            assert not refused.successful and "gain must be >= 0" in refused.reason
+    finally:
+        rclpy.try_shutdown(context=context)
+        thread.join(10.0)
+    assert not thread.is_alive(), "spin did not end after the context shut down"
+    assert not errors, errors
+    assert node.get_parameter("gain").value == 2.5
+    assert node.ticks >= 5
+    assert executor.rebuilds >= 2  # the late timer made it rebuild the wait set
+    assert all(m.actuating_pressure == node.received[0].actuating_pressure
+               for m in node.received)
+    executor.shutdown()
+    node.destroy_node()
