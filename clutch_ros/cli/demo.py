@@ -56,6 +56,7 @@ from clutch_ros.interfaces import DIAGNOSTICS
 from clutch_ros.model import reference_torque
 from clutch_ros.model.control import ControllerSettings
 from clutch_ros.nodes.demo_driver import DemoDriver
+from clutch_ros.nodes.lockstep import EPOCH_NS
 from clutch_ros.nodes.realtime import RealtimeSettings, apply_realtime, policy_of, time_sharing
 from clutch_ros.nodes.recorder import RecorderNode
 from clutch_ros.offline.demo_summary import closed_loop_summary
@@ -73,6 +74,13 @@ PUMP_RISE = 75e5
 
 #: ``bridge.rate`` [Hz] in lock-step: a cap above the rig's one trigger frame per 10 ms tick.
 LOCKSTEP_BRIDGE_RATE = 200.0
+#: [s] wall: lock-step's bound of one wait of the rig for the chain (``rig.lockstep_timeout``).
+#: Only a stuck chain should reach it: on a busy 2-core machine an answer took up to 1.7 s
+#: (``lockstep_wait_max_s``), and an expired wait makes the run differ from an idle one
+LOCKSTEP_TIMEOUT = 30.0
+#: [s] lock-step: the profile starts at this simulation time (the rig's /clock from
+#: ``nodes.lockstep.EPOCH_NS``), whenever the chain came up before it: every run the same
+LOCKSTEP_START = 3.0
 
 #: SCHED_FIFO priorities of the run's processes (1..99, higher preempts lower): the world
 #: first, then the bridge (CAN frames queue in its socket), then the model and the driver.
@@ -115,6 +123,9 @@ def add_parser(sub) -> None:
                         "10 ms tick instead of keeping real time: the same figures however "
                         "busy the machine is (implies --no-realtime; rig_state at 100 Hz, "
                         "--rate does not apply)")
+    p.add_argument("--trigger", choices=("timer", "estimate"),
+                   help="controller.trigger: 'timer' (a step every 10 ms) or 'estimate' (one "
+                        "step per estimate); default: estimate with --lockstep, else timer")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--one-process", action="store_true",
                    help="can_bridge, estimator and controller in one process (process "
@@ -166,14 +177,18 @@ def run(args) -> int:
     }
     if args.lockstep:
         args.no_realtime = True  # lock-step needs no priority: the rig waits for the chain
-        specs["rig_sim"] += ros_param_args({"rig.lockstep": True})
+        specs["rig_sim"] += ros_param_args({"rig.lockstep": True, "rig.lockstep_request": True,
+                                            "rig.lockstep_timeout": LOCKSTEP_TIMEOUT})
         # one RigSpeed per 10 ms tick: rig_state at 100 Hz. The cap sits above it, since on
         # stamps exactly 10 ms apart a 100 Hz token bucket refuses now and then by rounding
         # (the frame then waits for the bridge's flush timer, i.e. for the next /clock)
         specs["can_bridge"] += ros_param_args({"bridge.rate": LOCKSTEP_BRIDGE_RATE})
+        # one step per estimate, the command stamped with it: the rig waits for it
+        args.trigger = args.trigger or "estimate"
         for name in specs:
             if name != "rig_sim":
                 specs[name] += ros_param_args({"use_sim_time": True})
+    specs["controller"] += ros_param_args({"controller.trigger": args.trigger or "timer"})
     if not args.no_realtime:
         for name in specs:
             specs[name] += ros_param_args({"rt.policy": "fifo", "rt.priority": RT_PRIORITY[name]})
@@ -216,6 +231,7 @@ def run(args) -> int:
     summary["wall_time_s"] = wall_time
     if args.lockstep:
         summary["lockstep_timeouts"] = rig_diagnostic(out / "bag", "lockstep_timeouts")
+        summary["lockstep_wait_max_s"] = rig_diagnostic(out / "bag", "lockstep_wait_max_s")
     # True when every process of the chain ran at SCHED_FIFO (policy per process alongside)
     summary["realtime"] = all(policies.get(name, policies.get(CHAIN)) == "fifo"
                               for name in RT_PRIORITY)
@@ -249,7 +265,7 @@ def _drive(profile, procs, out: Path, args):
 
     rclpy.init(args=[])
     executor = SingleThreadedExecutor()
-    driver = DemoDriver(profile)
+    driver = DemoDriver(profile, on_clock=bool(args.lockstep))
     sim_time = rclpy.parameter.Parameter("use_sim_time", value=bool(args.lockstep))
     driver.set_parameters([sim_time])  # lock-step: profile time is the rig's /clock
     recorder = RecorderNode(parameter_overrides=[
@@ -261,14 +277,26 @@ def _drive(profile, procs, out: Path, args):
     executor.add_node(recorder)
     try:
         _say("waiting for the rig, bridge, estimator and controller ...")
-        deadline = time.monotonic() + 60.0
+        # lock-step: nothing depends on how long the start takes, on a busy machine minutes
+        up_within = 300.0 if args.lockstep else 60.0
+        deadline = time.monotonic() + up_within
         while min(driver.counts["rig"], driver.counts["estimate"], driver.counts["command"]) < 5:
             executor.spin_once(timeout_sec=0.05)
             _check_alive(procs)
             if time.monotonic() > deadline:
-                raise ClutchError("the nodes did not come up within 60 s: "
+                raise ClutchError(f"the nodes did not come up within {up_within:g} s: "
                                   f"{driver.counts}; logs in {out / 'logs'}")
-        driver.start()
+        start = EPOCH_NS * 1e-9 + LOCKSTEP_START
+        if args.lockstep and driver.now() < start:  # a fixed simulation time: every run alike
+            while driver.now() < start - 1e-6:
+                executor.spin_once(timeout_sec=0.01)
+                _check_alive(procs)
+            driver.started_at = start
+        else:
+            if args.lockstep:
+                _say(f"clutch demo: warning: the chain came up after {LOCKSTEP_START} s of "
+                     "simulation time; the profile starts now (runs may differ)")
+            driver.start()
         next_line = 0.0
         while not driver.finished:
             executor.spin_once(timeout_sec=0.01)

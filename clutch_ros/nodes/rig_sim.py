@@ -82,6 +82,11 @@ PARAMS = [
     ParamSpec("rig.lockstep_timeout", 2.0, "lock-step: wall time the rig waits for the chain's "
               "answer to a tick before it goes on (counted); read-only: fixed at start", "s",
               0.01, 60.0, read_only=True),
+    ParamSpec("rig.lockstep_request", False, "lock-step: once a torque_request came, also wait "
+              "for the one stamped at each tick before sending the tick's frames (a request "
+              "source on use_sim_time publishing on every /clock, as clutch demo's): the "
+              "controller has the tick's request before its estimate; read-only: fixed at start",
+              read_only=True),
     ParamSpec("rig.seed", 0, "seed of the sensor variation and noise; read-only: drawn at start",
               "", 0, 2**31 - 1, read_only=True),
 ]
@@ -137,7 +142,8 @@ class RigSimNode(Node):
                                           cfg["rig.lockstep_timeout"],
                                           lambda: self._port.poll(self._sim.time),
                                           send_time=lambda ns: self._bus.send(
-                                              time_frame(ns), timeout=0.05))
+                                              time_frame(ns), timeout=0.05),
+                                          wait_request=cfg["rig.lockstep_request"])
             stamp_clock = self._lockstep_stamp
         self._sim = RigSimulator(plant, self._scenario, self._port, dt=cfg["rig.dt"],
                                  stamp_clock=stamp_clock, lockstep=self._lockstep)

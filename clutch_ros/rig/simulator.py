@@ -21,8 +21,9 @@ the previous one ended.
 
 Lock-step (``lockstep``, a :class:`LockStep`): the run is paced by the chain that answers the
 rig instead of by a clock. Every ``lockstep.every`` ticks (a sync tick) step 4 becomes: call
-``lockstep.before_frames(t)`` (publish the time, wait for the chain's answer to it), send the
-frames due, call ``lockstep.after_frames(t)`` (wait for the chain to take them in); between
+``lockstep.before_frames(t)`` (publish the time), send the frames due, call
+``lockstep.after_frames(t)`` (wait for the chain's answer to them, the pump request of the
+next steps); between
 sync ticks no frames are sent (a frame due then goes out at the next sync tick, once: the
 scheduler does not burst). Run it with ``realtime=False``: the waits are the pacing.
 """
@@ -70,10 +71,10 @@ class LockStep(Protocol):
     every: int  # ticks per sync tick (>= 1)
 
     def before_frames(self, t: float) -> None:
-        """At sync tick ``t`` [s], before its frames are sent (publish the time, wait)."""
+        """At sync tick ``t`` [s], before its frames are sent (publish the time)."""
 
     def after_frames(self, t: float) -> None:
-        """At sync tick ``t`` [s], after its frames were sent (wait for them to be used)."""
+        """At sync tick ``t`` [s], after its frames were sent (wait for the chain's answer)."""
 
 
 @dataclass

@@ -1,9 +1,10 @@
 """RigSimulator in lock-step, over python-can's virtual bus: a partner paces the run.
 
 The partner stands in for the chain: at each sync tick it is told the time before the frames
-go out (and answers with a PumpRequest, as the bridge does), and after (it reads the frames,
-as the bridge does). Frames go out only at sync ticks, once each; the requests sent during the
-waits act from the next step on, so a run is the same however long the partner takes.
+go out, and after (it reads the frames, as the bridge does, and answers them with a
+PumpRequest, as controller and bridge do). Frames go out only at sync ticks, once each; the
+requests sent during the waits act from the next step on, so a run is the same however long
+the partner takes.
 """
 
 import time
@@ -24,7 +25,7 @@ DB = RigDatabase()
 
 
 class Partner:
-    """A lock-step partner: answers each sync tick with a PumpRequest, records the frames."""
+    """A lock-step partner: records each sync tick's frames, answers them with a PumpRequest."""
 
     def __init__(self, bus: can.BusABC, every: int, pressure: float, delay: float = 0.0):
         self.every, self.bus, self.pressure, self.delay = every, bus, pressure, delay
@@ -35,9 +36,6 @@ class Partner:
 
     def before_frames(self, t: float) -> None:
         self.calls.append(("before", t))
-        time.sleep(self.delay)  # a slow chain: the simulation waits, its time does not move
-        self.bus.send(self.codec.encode(self.pressure, self._counter))
-        self._counter = (self._counter + 1) % 16
 
     def after_frames(self, t: float) -> None:
         self.calls.append(("after", t))
@@ -45,6 +43,9 @@ class Partner:
         while (msg := self.bus.recv(timeout=0.0)) is not None:
             names.append(DB.lookup(msg.arbitration_id).name)
         self.frames.append((t, names))
+        time.sleep(self.delay)  # a slow chain: the simulation waits, its time does not move
+        self.bus.send(self.codec.encode(self.pressure, self._counter))
+        self._counter = (self._counter + 1) % 16
 
 
 def _run(delay: float, steps: float = 0.3):
