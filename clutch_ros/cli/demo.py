@@ -232,6 +232,8 @@ def run(args) -> int:
     if args.lockstep:
         summary["lockstep_timeouts"] = rig_diagnostic(out / "bag", "lockstep_timeouts")
         summary["lockstep_wait_max_s"] = rig_diagnostic(out / "bag", "lockstep_wait_max_s")
+        summary["lockstep_last_timeout"] = rig_diagnostic(out / "bag", "lockstep_last_timeout",
+                                                          text=True)
     # True when every process of the chain ran at SCHED_FIFO (policy per process alongside)
     summary["realtime"] = all(policies.get(name, policies.get(CHAIN)) == "fifo"
                               for name in RT_PRIORITY)
@@ -321,9 +323,13 @@ def _drive(profile, procs, out: Path, args):
     return written, driver
 
 
-def rig_diagnostic(bag: Path, key: str, node: str = "/rig_sim") -> float:
-    """Return the last value of ``key`` in ``node``'s /diagnostics in ``bag`` (NaN: none)."""
-    value = math.nan
+def rig_diagnostic(bag: Path, key: str, node: str = "/rig_sim",
+                   text: bool = False) -> float | str:
+    """Return the last value of ``key`` in ``node``'s /diagnostics in ``bag`` (NaN: none).
+
+    ``text``: the value as it is (a str; "" when none), not as a float.
+    """
+    value: float | str = "" if text else math.nan
     with BagReader(bag) as reader:
         if DIAGNOSTICS.absolute not in reader.topics:
             return value
@@ -331,7 +337,7 @@ def rig_diagnostic(bag: Path, key: str, node: str = "/rig_sim") -> float:
             for status in msg.status:
                 for kv in status.values if status.name == node else ():
                     if kv.key == key:
-                        value = float(kv.value)
+                        value = kv.value if text else float(kv.value)
     return value
 
 

@@ -27,7 +27,8 @@ import pytest
 
 from tests.conftest import REPO
 
-pytestmark = [pytest.mark.ros, pytest.mark.slow]
+# lock-step's wall time grows with the machine's load (the runs' own bounds: 1500 s + 600 s)
+pytestmark = [pytest.mark.ros, pytest.mark.slow, pytest.mark.timeout(2400)]
 
 
 def _demo(tmp_path_factory, env, *options: str, timeout: float):
@@ -55,8 +56,10 @@ def test_closed_loop_meets_the_main_jobs_targets(demo_run):
     _, summary = demo_run
     figures = {k: summary[k] for k in ("steady_state_error", "within_10pct", "worst_overshoot",
                                        "worst_overshoot_time_s", "lockstep_timeouts",
+                                       "lockstep_last_timeout", "lockstep_wait_max_s",
                                        "wall_time_s")}
     assert summary["lockstep"] is True and summary["realtime"] is False
+    print(f"lock-step run: {figures}")
     assert summary["lockstep_timeouts"] == 0, figures  # the rig never stepped on unanswered
     assert summary["settled_samples"] > 3000
     assert summary["steady_state_error"] <= 0.02, figures
