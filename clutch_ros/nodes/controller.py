@@ -115,8 +115,11 @@ class ControllerNode(Node):
         # raw: only the arrival of rig_state counts here; not deserialising it saves the
         # message construction (~30 fields) on every sample
         self.create_subscription(RigState, RIG_STATE.name, self._on_rig, sensor_qos(), raw=True)
+        # (estimate trigger: every estimate is answered, so none may be dropped: the topic's
+        # reliable subscriber profile)
         self.create_subscription(ClutchEstimate, CLUTCH_ESTIMATE.name, self._on_estimate,
-                                 sensor_qos())
+                                 subscriber_qos(CLUTCH_ESTIMATE.name) if self._on_estimates
+                                 else sensor_qos())
         # one PressureCommand, refilled per tick (publish serialises it before it returns)
         self._cmd = PressureCommand()
         # the node clock's C handle: node time (ROS time, /clock with use_sim_time) without a
