@@ -14,6 +14,14 @@ on the PC cannot starve the live chain; where the OS refuses (not root, no rtpri
 run goes on at the normal policy and the summary says so (``realtime``). ``--no-realtime``
 asks for nothing.
 
+``--lockstep``: the simulated rig does not keep real time; it publishes ``/clock``, every node
+of the chain (and this process's driver and recorder) runs with ``use_sim_time``, and the
+rig waits for the chain to answer every 10 ms tick before it steps on
+(:mod:`clutch_ros.nodes.lockstep`). The run then takes as long as the chain needs, and its
+figures are the same on an idle and on a busy machine: the tests assert the targets on it.
+It asks for no real-time scheduling (it needs none). The summary adds ``lockstep_timeouts``
+(waits for the chain that expired; 0 in a good run) and ``wall_time_s``.
+
 The rig's truth plant (``rig_truth`` preset, ``coulomb`` spline law) differs on purpose from
 the estimator's preset, so the demo never compares a model with itself.
 
@@ -38,14 +46,17 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.logging import LoggingSeverity
 
+from clutch_ros.bag.reader import BagReader
 from clutch_ros.cli.dispatch import emit_json
 from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
+from clutch_ros.interfaces import DIAGNOSTICS
 from clutch_ros.model import reference_torque
 from clutch_ros.model.control import ControllerSettings
 from clutch_ros.nodes.demo_driver import DemoDriver
+from clutch_ros.nodes.lockstep import EPOCH_NS
 from clutch_ros.nodes.realtime import RealtimeSettings, apply_realtime, policy_of, time_sharing
 from clutch_ros.nodes.recorder import RecorderNode
 from clutch_ros.offline.demo_summary import closed_loop_summary
@@ -60,6 +71,16 @@ __all__ = ["PUMP_RISE", "add_parser", "run"]
 #: on a clean staircase, 1.78 bar with 0-15 ms of arrival jitter; 75 bar/s: none, 0.68 bar).
 #: The figures of both rates: benchmarks/RESULTS.md.
 PUMP_RISE = 75e5
+
+#: ``bridge.rate`` [Hz] in lock-step: a cap above the rig's one trigger frame per 10 ms tick.
+LOCKSTEP_BRIDGE_RATE = 200.0
+#: [s] wall: lock-step's bound of one wait of the rig for the chain (``rig.lockstep_timeout``).
+#: Only a stuck chain should reach it: on a busy 2-core machine an answer took up to 1.7 s
+#: (``lockstep_wait_max_s``), and an expired wait makes the run differ from an idle one
+LOCKSTEP_TIMEOUT = 30.0
+#: [s] lock-step: the profile starts at this simulation time (the rig's /clock from
+#: ``nodes.lockstep.EPOCH_NS``), whenever the chain came up before it: every run the same
+LOCKSTEP_START = 3.0
 
 #: SCHED_FIFO priorities of the run's processes (1..99, higher preempts lower): the world
 #: first, then the bridge (CAN frames queue in its socket), then the model and the driver.
@@ -97,6 +118,14 @@ def add_parser(sub) -> None:
                    help="run every process at the normal time-sharing policy (default: "
                         "SCHED_FIFO where the OS allows it, so other work cannot starve the "
                         "live chain)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="the rig publishes /clock and waits for the chain (use_sim_time) every "
+                        "10 ms tick instead of keeping real time: the same figures however "
+                        "busy the machine is (implies --no-realtime; rig_state at 100 Hz, "
+                        "--rate does not apply)")
+    p.add_argument("--trigger", choices=("timer", "estimate"),
+                   help="controller.trigger: 'timer' (a step every 10 ms) or 'estimate' (one "
+                        "step per estimate); default: estimate with --lockstep, else timer")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--one-process", action="store_true",
                    help="can_bridge, estimator and controller in one process (process "
@@ -146,14 +175,30 @@ def run(args) -> int:
              "controller.rise_rate_limit": PUMP_RISE,
              "controller.trim_rate": 0.0 if args.no_adapt else ControllerSettings.trim_rate})],
     }
+    if args.lockstep:
+        args.no_realtime = True  # lock-step needs no priority: the rig waits for the chain
+        specs["rig_sim"] += ros_param_args({"rig.lockstep": True, "rig.lockstep_request": True,
+                                            "rig.lockstep_timeout": LOCKSTEP_TIMEOUT})
+        # one RigSpeed per 10 ms tick: rig_state at 100 Hz. The cap sits above it, since on
+        # stamps exactly 10 ms apart a 100 Hz token bucket refuses now and then by rounding
+        # (the frame then waits for the bridge's flush timer, i.e. for the next /clock)
+        specs["can_bridge"] += ros_param_args({"bridge.rate": LOCKSTEP_BRIDGE_RATE})
+        # one step per estimate, the command stamped with it: the rig waits for it
+        args.trigger = args.trigger or "estimate"
+        for name in specs:
+            if name != "rig_sim":
+                specs[name] += ros_param_args({"use_sim_time": True})
+    specs["controller"] += ros_param_args({"controller.trigger": args.trigger or "timer"})
     if not args.no_realtime:
         for name in specs:
             specs[name] += ros_param_args({"rt.policy": "fifo", "rt.priority": RT_PRIORITY[name]})
     if args.dashboard:
-        specs["dashboard"] = ros_param_args({"dashboard.port": args.dashboard_port})
+        specs["dashboard"] = ros_param_args({"dashboard.port": args.dashboard_port,
+                                             "use_sim_time": bool(args.lockstep)})
         _say(f"clutch demo: dashboard at ws://127.0.0.1:{args.dashboard_port} (Foxglove: open "
              "connection -> Foxglove WebSocket; layout params/clutch_dashboard.json)")
     procs = []
+    wall_start = time.monotonic()
     if getattr(args, "one_process", False):
         specs = _one_process(specs)
     try:
@@ -176,9 +221,19 @@ def run(args) -> int:
                     **{proc.name: policy_of(proc.pid) for proc in procs}}
     finally:
         time_sharing()  # the summary and plots need no priority
-        for proc in reversed(procs):
+        # lock-step: the rig (the clock) first, so the others' time stands still as they stop
+        first = [p for p in procs if p.name == "rig_sim"] if args.lockstep else []
+        for proc in first + [p for p in reversed(procs) if p not in first]:
             proc.stop()
+    wall_time = time.monotonic() - wall_start
     summary = _summarise(out, profile, driver, written, rated, args)
+    summary["lockstep"] = bool(args.lockstep)
+    summary["wall_time_s"] = wall_time
+    if args.lockstep:
+        summary["lockstep_timeouts"] = rig_diagnostic(out / "bag", "lockstep_timeouts")
+        summary["lockstep_wait_max_s"] = rig_diagnostic(out / "bag", "lockstep_wait_max_s")
+        summary["lockstep_last_timeout"] = rig_diagnostic(out / "bag", "lockstep_last_timeout",
+                                                          text=True)
     # True when every process of the chain ran at SCHED_FIFO (policy per process alongside)
     summary["realtime"] = all(policies.get(name, policies.get(CHAIN)) == "fifo"
                               for name in RT_PRIORITY)
@@ -212,24 +267,38 @@ def _drive(profile, procs, out: Path, args):
 
     rclpy.init(args=[])
     executor = SingleThreadedExecutor()
-    driver = DemoDriver(profile)
+    driver = DemoDriver(profile, on_clock=bool(args.lockstep))
+    sim_time = rclpy.parameter.Parameter("use_sim_time", value=bool(args.lockstep))
+    driver.set_parameters([sim_time])  # lock-step: profile time is the rig's /clock
     recorder = RecorderNode(parameter_overrides=[
         rclpy.parameter.Parameter("recorder.output", value=str(out / "bag")),
-        rclpy.parameter.Parameter("recorder.storage", value=args.storage)])
+        rclpy.parameter.Parameter("recorder.storage", value=args.storage), sim_time])
 
     recorder.get_logger().set_level(LoggingSeverity.WARN)  # the summary says where the bag is
     executor.add_node(driver)
     executor.add_node(recorder)
     try:
         _say("waiting for the rig, bridge, estimator and controller ...")
-        deadline = time.monotonic() + 60.0
+        # lock-step: nothing depends on how long the start takes, on a busy machine minutes
+        up_within = 300.0 if args.lockstep else 60.0
+        deadline = time.monotonic() + up_within
         while min(driver.counts["rig"], driver.counts["estimate"], driver.counts["command"]) < 5:
             executor.spin_once(timeout_sec=0.05)
             _check_alive(procs)
             if time.monotonic() > deadline:
-                raise ClutchError("the nodes did not come up within 60 s: "
+                raise ClutchError(f"the nodes did not come up within {up_within:g} s: "
                                   f"{driver.counts}; logs in {out / 'logs'}")
-        driver.start()
+        start = EPOCH_NS * 1e-9 + LOCKSTEP_START
+        if args.lockstep and driver.now() < start:  # a fixed simulation time: every run alike
+            while driver.now() < start - 1e-6:
+                executor.spin_once(timeout_sec=0.01)
+                _check_alive(procs)
+            driver.started_at = start
+        else:
+            if args.lockstep:
+                _say(f"clutch demo: warning: the chain came up after {LOCKSTEP_START} s of "
+                     "simulation time; the profile starts now (runs may differ)")
+            driver.start()
         next_line = 0.0
         while not driver.finished:
             executor.spin_once(timeout_sec=0.01)
@@ -237,9 +306,12 @@ def _drive(profile, procs, out: Path, args):
             if driver.elapsed() >= next_line:
                 _say(driver.progress_line(), end="\r" if sys.stderr.isatty() else "\n")
                 next_line += 1.0
-        end = time.monotonic() + 1.0  # requests at 0 for a second: the pump releases
-        while time.monotonic() < end:
+        # requests at 0 for a second (of the driver's clock: the rig's in lock-step), so the
+        # pump releases; a wall-clock bound in case a lock-step rig stopped answering
+        end, wall_end = driver.elapsed() + 1.0, time.monotonic() + 30.0
+        while driver.elapsed() < end and time.monotonic() < wall_end:
             executor.spin_once(timeout_sec=0.01)
+            _check_alive(procs)
         _say("")
     finally:
         recorder.drain(executor, quiet=0.3, limit=3.0)  # what DDS still queues: into the bag
@@ -249,6 +321,24 @@ def _drive(profile, procs, out: Path, args):
         driver.destroy_node()
         rclpy.try_shutdown()
     return written, driver
+
+
+def rig_diagnostic(bag: Path, key: str, node: str = "/rig_sim",
+                   text: bool = False) -> float | str:
+    """Return the last value of ``key`` in ``node``'s /diagnostics in ``bag`` (NaN: none).
+
+    ``text``: the value as it is (a str; "" when none), not as a float.
+    """
+    value: float | str = "" if text else math.nan
+    with BagReader(bag) as reader:
+        if DIAGNOSTICS.absolute not in reader.topics:
+            return value
+        for _, _, msg in reader.messages([DIAGNOSTICS.absolute]):
+            for status in msg.status:
+                for kv in status.values if status.name == node else ():
+                    if kv.key == key:
+                        value = kv.value if text else float(kv.value)
+    return value
 
 
 def _check_alive(procs) -> None:
@@ -287,6 +377,9 @@ def _print_summary(s: dict) -> None:
             else "off (--no-adapt: feed-forward path)"),
         f"  bag: {s['bag']}",
     ]
+    if s["lockstep"]:
+        lines.insert(-1, f"  lock-step: {s['wall_time_s']:.0f} s of wall time, "
+                     f"{s['lockstep_timeouts']:.0f} waits for the chain expired")
     if s.get("rig_lost_time_s", 0.0) > 0.0:  # NaN (no report) compares False
         lines.insert(-1, f"  warning: the simulated rig fell behind real time and dropped "
                      f"{s['rig_lost_time_s']:.2f} s (the machine is short of CPU; the "

@@ -92,6 +92,7 @@ from clutch_ros.nodes.can_diagnostics import hardware_id, node_status
 from clutch_ros.nodes.command_sources import CommandSources
 from clutch_ros.nodes.convert import can_frame_to_ros, rig_state_to_ros
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
+from clutch_ros.nodes.lockstep import time_of_frame
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM
 from clutch_ros.nodes.qos import publisher_qos, sensor_qos
 from clutch_ros.nodes.renamed_params import declare_with_renames
@@ -115,6 +116,8 @@ class CanBridgeNode(LifecycleNode):
         if reason is not None:
             raise ClutchError(reason)
         self._send_warn, self._lock, self._failure = LogThrottle(5.0), threading.Lock(), None
+        self._sim_time = False  # use_sim_time, read at configure
+        self._time_floor = 0.0  # [s] sim time: the newest command stamp (see _node_time)
         self._command = self._rig_pub = self._cmd_pub = self._raw_pub = self._rx = None
         self._rx_stop = threading.Event()
         self._sub = self._pump_timer = self._flush_timer = None
@@ -140,9 +143,12 @@ class CanBridgeNode(LifecycleNode):
             st.assembler = RigStateAssembler(db, signal_map=SignalMap(signal_specs(cfg)),
                                              socketcan_error_frames=cfg["can.interface"]
                                              == "socketcan")
-            st.gate = PumpCommandGate(time.monotonic, gate_config(cfg), st.assembler.map.pump,
-                                      stamp_clock=lambda: self.get_clock().now()
-                                      .nanoseconds * 1e-9)
+            # use_sim_time (a lock-step rig's /clock): the node clock is the time base of
+            # the frames, the gate's watchdog and rate limit, and the pacer, not the PC's
+            self._sim_time = bool(self.get_parameter("use_sim_time").value)
+            st.gate = PumpCommandGate(self._node_time if self._sim_time else time.monotonic,
+                                      gate_config(cfg), st.assembler.map.pump,
+                                      stamp_clock=self._node_time)
             st.pacer = PublishPacer(cfg["bridge.rate"], self._trigger(
                 cfg["bridge.publish_on"]), frozenset(st.assembler.map.writes))
             if cfg["input.log_file"]:
@@ -248,6 +254,17 @@ class CanBridgeNode(LifecycleNode):
         self._halt("shutdown")
         self._close_bus()
 
+    def _node_time(self) -> float:
+        """Return the node clock [s] (ROS time: /clock with use_sim_time).
+
+        With use_sim_time, never earlier than the newest admitted command's stamp (a command
+        stamped T proves that /clock reached T) nor the newest lock-step time frame on the bus
+        (sent before a tick's frames, which must be stamped T even when this node's /clock
+        is late: :mod:`clutch_ros.nodes.lockstep`).
+        """
+        now = self.get_clock().now().nanoseconds * 1e-9
+        return max(now, self._time_floor) if self._sim_time else now
+
     # -- parameters -----------------------------------------------------------------------
     def _check_params(self, params) -> SetParametersResult:
         values = dict(self._cfg)
@@ -332,6 +349,12 @@ class CanBridgeNode(LifecycleNode):
         # the thread starts after configure made them, and stops before cleanup
         assert assembler is not None and gate is not None and pacer is not None
         try:
+            if self._sim_time:  # received at the node's (simulated) time, not the PC's
+                tick = time_of_frame(frame[1], frame[2], frame[7])
+                if tick is not None:  # a lock-step rig's time frame: the frames after it
+                    self._time_floor = max(self._time_floor, tick)
+                    return
+                frame = (self._node_time(), *frame[1:])
             key = assembler.feed_frame(*frame)
             if not st.active:
                 return
@@ -380,18 +403,18 @@ class CanBridgeNode(LifecycleNode):
         assert assembler is not None and pacer is not None  # configured
         with self._lock:
             newest = assembler.newest_time
-            now = newest if bus_time and newest is not None else \
-                time.time() - (st.offset or 0.0)
+            wall = self._node_time() if self._sim_time else time.time()
+            now = newest if bus_time and newest is not None else wall - (st.offset or 0.0)
             if not decide(*args, now):
                 return
             if newest is not None and st.offset is None:  # relative clocks -> the epoch
-                skew = time.time() - newest
+                skew = wall - newest
                 st.offset = skew if abs(skew) > 3600.0 else 0.0
             if newest is None or not self._publish(assembler.snapshot()):
                 pacer.refund()
                 return
             # (st.offset was set above when it was None)
-            st.lag_max = max(st.lag_max, time.time() - (st.offset or 0.0) - newest)
+            st.lag_max = max(st.lag_max, wall - (st.offset or 0.0) - newest)
 
     def _publish(self, sample) -> bool:
         st = self.state
@@ -417,8 +440,12 @@ class CanBridgeNode(LifecycleNode):
             gate.refuse(kind, reason)
             return
         stamp = stamp_to_sec(msg.header.stamp)
+        if self._sim_time and stamp > self._time_floor:  # (see _node_time)
+            self._time_floor = stamp
         admitted = gate.commands
         out = gate.submit(msg.pressure, stamp if stamp > 0.0 else None)
+        if out is None and self._sim_time and gate.commands != admitted:
+            out = gate.tick()  # simulated time: every admitted command answered by a frame
         self._send(out, msg if gate.commands != admitted else None)
 
     def _send(self, out, command=None, timeout: float = SEND_TIMEOUT) -> None:
@@ -443,7 +470,8 @@ class CanBridgeNode(LifecycleNode):
         st.last_report = (out.pressure, out.reason)
         applied = PressureCommand(pressure=float(out.pressure), limited=bool(out.limited),
                                   reason=out.reason)
-        applied.header.stamp = self.get_clock().now().to_msg()
+        applied.header.stamp = (command.header.stamp if command is not None and self._sim_time
+                                else self.get_clock().now().to_msg())  # (nodes/lockstep)
         applied.requested_torque = command.requested_torque if command else 0.0
         applied.predicted_torque = command.predicted_torque if command else 0.0
         try:

@@ -19,7 +19,18 @@ rate limit) with ``reason`` naming the input and the silent node, read from the 
 (``fail-safe: stale estimate: no clutch_estimate from /estimator for 0.31 s (> 0.25 s)``, see
 :mod:`clutch_ros.nodes.peers`); the check runs every tick (``1/controller.rate``), so 0 Pa
 follows at most one period after a timeout. Commands resume by themselves when fresh data
-returns. Every published pressure is within the configured limits, whatever arrives (NaN or
+returns.
+
+Trigger (``controller.trigger``, read-only): ``timer`` runs a step every ``1/controller.rate``
+on the newest estimate; ``estimate`` runs one step per ``clutch_estimate`` as it arrives and
+stamps the command with the estimate's stamp, so the command names the estimate it answers
+(lock-step: the rig waits for the command of its tick, :mod:`clutch_ros.nodes.lockstep`) and
+the node wakes once per command less. ``controller.rate`` is then the estimates' rate (the
+rate limits and the trim advance one period per step; an estimate stamped less than half a
+period after the last answered one is skipped, counted ``skipped``), and a watchdog timer every
+``WATCHDOG_FRACTION`` of the shortest input timeout commands 0 Pa (fail-safe, as above) when no
+step ran for that long and an input is stale: 0 Pa follows at most 1.25 timeouts after the
+estimate stopped. Every published pressure is within the configured limits, whatever arrives (NaN or
 negative requests are treated as 0 N m and reported).
 
 Adapted model and trim: the target is inverted with μ scaled by the estimate's adapted
@@ -49,7 +60,13 @@ from clutch_ros.config.presets import default_preset
 from clutch_ros.errors import ClutchError
 from clutch_ros.interfaces import CLUTCH_ESTIMATE, PRESSURE_COMMAND, RIG_STATE, TORQUE_REQUEST
 from clutch_ros.model.control import TorqueController
-from clutch_ros.nodes.controller_params import PARAMS, TIMEOUTS, controller_settings
+from clutch_ros.nodes.controller_params import (
+    PARAMS,
+    TIMEOUTS,
+    TRIGGERS,
+    WATCHDOG_FRACTION,
+    controller_settings,
+)
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.model_params import apply_model_changes, declare_model_params
 from clutch_ros.nodes.parameters import declare_params
@@ -67,6 +84,10 @@ class ControllerNode(Node):
     def __init__(self):
         super().__init__(NAME)
         cfg = self._cfg = declare_params(self, PARAMS)
+        if cfg["controller.trigger"] not in TRIGGERS:
+            raise ClutchError(f"controller.trigger must be one of {'|'.join(TRIGGERS)}, got "
+                              f"{cfg['controller.trigger']!r}")
+        self._on_estimates = cfg["controller.trigger"] == "estimate"
         params = declare_model_params(self, default_preset("flexiforce_8"))
         self._ctl = TorqueController(params, controller_settings(cfg))
         self._peers = PeerWatch(self, [
@@ -77,7 +98,10 @@ class ControllerNode(Node):
             Input("estimate", CLUTCH_ESTIMATE.name, cfg["controller.estimate_timeout"],
                   CLUTCH_ESTIMATE.publisher_node)])
         self._estimate = None
-        self._counts = {"commands": 0, "limited": 0, "failsafe": 0, "bad_requests": 0}
+        self._counts = {"commands": 0, "limited": 0, "failsafe": 0, "bad_requests": 0,
+                        "skipped": 0}
+        self._stepped_ns = -1  # [ns] stamp of the last estimate a step answered
+        self._stepped_at = -1e300  # [s] node clock at the last step
         self._last_reason = ""
         self._warn = LogThrottle(5.0)
         self._pub = self.create_publisher(PressureCommand, PRESSURE_COMMAND.name,
@@ -91,14 +115,22 @@ class ControllerNode(Node):
         # raw: only the arrival of rig_state counts here; not deserialising it saves the
         # message construction (~30 fields) on every sample
         self.create_subscription(RigState, RIG_STATE.name, self._on_rig, sensor_qos(), raw=True)
+        # (estimate trigger: every estimate is answered, so none may be dropped: the topic's
+        # reliable subscriber profile)
         self.create_subscription(ClutchEstimate, CLUTCH_ESTIMATE.name, self._on_estimate,
-                                 sensor_qos())
+                                 subscriber_qos(CLUTCH_ESTIMATE.name) if self._on_estimates
+                                 else sensor_qos())
         # one PressureCommand, refilled per tick (publish serialises it before it returns)
         self._cmd = PressureCommand()
         # the node clock's C handle: node time (ROS time, /clock with use_sim_time) without a
         # rclpy Time object per call
         self._clock_handle = self.get_clock().handle
-        self._timer = self.create_timer(self._ctl.settings.period, self._tick)
+        # use_sim_time: node time is never earlier than the newest request or estimate stamp
+        # (a message stamped T proves that /clock reached T, whether or not this node's /clock
+        # arrived first: the same time on every lock-step run, as the bridge's node time)
+        self._sim_time = bool(self.get_parameter("use_sim_time").value)
+        self._time_floor = 0.0  # [s]
+        self._timer = self._make_timer()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
 
@@ -133,20 +165,34 @@ class ControllerNode(Node):
                                      settings.max_pressure)
             for what, key in TIMEOUTS.items():
                 self._peers.set_timeout(what, cfg[key])
-            if period_changed:
+            if period_changed or self._on_estimates:  # (the watchdog's follows the timeouts)
                 self.destroy_timer(self._timer)
-                self._timer = self.create_timer(settings.period, self._tick)
+                self._timer = self._make_timer()
             self.get_logger().info("controller settings changed: " + ", ".join(
                 f"{k}={v}" for k, v in sorted(own.items())))
         return SetParametersResult(successful=True)
 
+    def _make_timer(self):
+        if self._on_estimates:
+            return self.create_timer(self._watchdog_period(), self._watchdog)
+        return self.create_timer(self._ctl.settings.period, self._tick)
+
+    def _watchdog_period(self) -> float:
+        return WATCHDOG_FRACTION * min(self._cfg[key] for key in TIMEOUTS.values())
+
     def _now(self) -> float:
-        return self._clock_handle.get_now().nanoseconds * 1e-9
+        now = self._clock_handle.get_now().nanoseconds * 1e-9
+        return max(now, self._time_floor) if self._sim_time else now
+
+    def _saw(self, stamp: float) -> None:
+        if self._sim_time and stamp > self._time_floor:
+            self._time_floor = stamp
 
     def _on_request(self, msg) -> None:
+        stamp = stamp_to_sec(msg.header.stamp)
+        self._saw(stamp)
         now = self._now()
         self._peers.seen("torque request", now)
-        stamp = stamp_to_sec(msg.header.stamp)
         warning = self._ctl.set_request(now, msg.torque, stamp if stamp > 0.0 else None)
         if warning:
             self._counts["bad_requests"] += 1
@@ -158,13 +204,33 @@ class ControllerNode(Node):
 
     def _on_estimate(self, msg) -> None:
         self._estimate = msg
-        self._peers.seen("estimate", self._now())
+        ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        self._saw(ns * 1e-9)
+        now = self._now()
+        self._peers.seen("estimate", now)
+        if self._on_estimates:
+            if ns - self._stepped_ns < 0.5e9 * self._ctl.settings.period:
+                self._counts["skipped"] += 1  # faster than controller.rate, or out of order
+                return
+            self._stepped_at, self._stepped_ns = now, ns
+            self._step(now, ns)
+
+    def _watchdog(self) -> None:
+        """Estimate trigger: the fail-safe when no step ran for a watchdog period."""
+        now = self._now()
+        if now - self._stepped_at >= self._watchdog_period() and self._stale_reason(now):
+            self._step(now, max(self._clock_handle.get_now().nanoseconds,
+                                round(self._time_floor * 1e9)))
 
     def _stale_reason(self, now: float) -> str:
         return self._peers.silent(now)
 
     def _tick(self) -> None:
-        stale = self._stale_reason(self._now())
+        self._step(self._now(), self._clock_handle.get_now().nanoseconds)
+
+    def _step(self, now: float, stamp_ns: int) -> None:
+        """Compute and publish one command stamped ``stamp_ns`` [ns] at node time ``now``."""
+        stale = self._stale_reason(now)
         est = self._estimate
         if stale or est is None:  # (no estimate yet: the peer check reports it silent)
             out = self._ctl.fail_safe(stale or "no estimate yet")
@@ -181,8 +247,8 @@ class ControllerNode(Node):
                                    est.spline_correction, est.measured_torque,
                                    est.modelled_torque, scale)
         msg = self._cmd
-        stamp = msg.header.stamp  # as Time.to_msg(): seconds and nanoseconds of the node clock
-        stamp.sec, stamp.nanosec = divmod(self._clock_handle.get_now().nanoseconds, 10**9)
+        stamp = msg.header.stamp  # as Time.to_msg(): seconds and nanoseconds (node clock or
+        stamp.sec, stamp.nanosec = divmod(stamp_ns, 10**9)  # the answered estimate's stamp)
         msg.pressure = float(out.pressure)
         msg.requested_torque = float(out.requested_torque)
         msg.predicted_torque = float(out.predicted_torque)

@@ -13,7 +13,14 @@ from __future__ import annotations
 from clutch_ros.model.control import ControllerSettings
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec
 
-__all__ = ["PARAMS", "RIG_TIMEOUT", "TIMEOUTS", "controller_settings"]
+__all__ = ["PARAMS", "RIG_TIMEOUT", "TIMEOUTS", "TRIGGERS", "WATCHDOG_FRACTION",
+           "controller_settings"]
+
+#: values of ``controller.trigger``: what runs a control step
+TRIGGERS = ("timer", "estimate")
+#: ``controller.trigger`` "estimate": the fail-safe check runs every this fraction of the
+#: shortest input timeout, so 0 Pa follows at most 1.25 timeouts after an input stopped
+WATCHDOG_FRACTION = 0.25
 
 #: [s] default ``controller.rig_timeout``: rig_state older than this is stale (also the
 #: can_bridge's publishing-lag warning, :data:`clutch_ros.nodes.can_diagnostics.LAG_WARN`)
@@ -77,6 +84,13 @@ PARAMS = [
               "s", 0.001, 3600.0),
     ParamSpec("controller.estimate_timeout", 0.25, "clutch_estimate older than this is stale "
               "-> 0 Pa", "s", 0.001, 3600.0),
+    ParamSpec("controller.trigger", "timer", "what runs a control step: 'timer' every "
+              "1/controller.rate; 'estimate' one step per clutch_estimate, the command stamped "
+              "with the estimate's stamp (it names the estimate it answers: lock-step), "
+              "controller.rate then the estimates' rate (an estimate stamped less than half a "
+              "period after the last step's is skipped) and the fail-safe checked every quarter "
+              "of the shortest input timeout; read-only: fixed at start", choices=TRIGGERS,
+              read_only=True),
     HARDWARE_ID_PARAM,
 ]
 

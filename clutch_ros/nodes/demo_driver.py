@@ -4,7 +4,8 @@
 (:mod:`clutch_ros.rig.request_profile`), sets the simulated rig's slip speed (parameter
 ``rig.slip_speed`` of the ``rig_sim`` node, as a test engineer sets the rig motor) when the
 profile's segment changes, and keeps the latest rig state, estimate and command for the
-progress line.
+progress line. With ``on_clock`` (lock-step) it publishes one request per ``/clock`` value
+instead, stamped with it (not on a timer of its own: every tick has its request).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_client import AsyncParameterClient
 from rclpy.task import Future
+from rosgraph_msgs.msg import Clock
 
 from clutch_ros.interfaces import CLUTCH_ESTIMATE, PRESSURE_COMMAND, RIG_STATE, TORQUE_REQUEST
 from clutch_ros.nodes.qos import publisher_qos, sensor_qos, subscriber_qos
@@ -28,7 +30,8 @@ __all__ = ["DemoDriver"]
 class DemoDriver(Node):
     """Torque-request publisher and rig-speed setter for ``clutch demo``."""
 
-    def __init__(self, profile, rate_hz: float = 50.0, rig_node: str = "rig_sim"):
+    def __init__(self, profile, rate_hz: float = 50.0, rig_node: str = "rig_sim",
+                 on_clock: bool = False):
         super().__init__("demo_driver")
 
         self.profile = profile
@@ -46,7 +49,17 @@ class DemoDriver(Node):
                                  subscriber_qos(CLUTCH_ESTIMATE.name))
         self.create_subscription(PressureCommand, PRESSURE_COMMAND.name, self._keep("command"),
                                  subscriber_qos(PRESSURE_COMMAND.name))
-        self.create_timer(1.0 / rate_hz, self._tick)
+        self._clock_ns = -1  # on_clock: the newest /clock value [ns]
+        if on_clock:
+            self.create_subscription(Clock, "/clock", self._on_clock, 10)
+        else:
+            self.create_timer(1.0 / rate_hz, self._tick)
+
+    def _on_clock(self, msg) -> None:
+        ns = msg.clock.sec * 1_000_000_000 + msg.clock.nanosec
+        if ns > self._clock_ns:  # (the rig publishes a tick again while it waits)
+            self._clock_ns = ns
+            self._tick(msg.clock)
 
     def _keep(self, key: str):
         def store(msg) -> None:
@@ -81,15 +94,17 @@ class DemoDriver(Node):
         self._slip_future = self._params.set_parameters(
             [Parameter("rig.slip_speed", value=float(slip_speed))])
 
-    def _tick(self) -> None:
-
+    def _tick(self, stamp=None) -> None:
+        """Publish the request of now (``stamp``: of that time, a ``/clock`` value)."""
         t = self.elapsed()
+        if stamp is not None and self.started_at is not None:
+            t = stamp.sec + stamp.nanosec * 1e-9 - self.started_at
         self.set_slip_speed(slip_at(self.profile, t))
         if self.started_at is None:
             return
         msg = TorqueRequest()
-        msg.header.stamp = self.get_clock().now().to_msg()
-        msg.torque = float(request_at(self.profile, t)) if not self.finished else 0.0
+        msg.header.stamp = stamp if stamp is not None else self.get_clock().now().to_msg()
+        msg.torque = float(request_at(self.profile, t)) if t < self.duration else 0.0
         self._pub.publish(msg)
         self.counts["request"] += 1
 

@@ -13,6 +13,13 @@ pump follows the bus. Otherwise a scripted run of the thesis (Tables 3-4):
 ``table3:SEQ:RPM`` (DBP), ``table4:SEQ`` (PBD), or ``closed_loop[:RPM,...[:SEGMENT_S]]``.
 Frames are stamped with the wall clock (like a real adapter's receive time).
 
+Lock-step (``rig.lockstep``, read-only): the rig is the ROS graph's clock instead of keeping
+real time. It publishes ``/clock`` every ``rig.lockstep_period`` and waits, at most
+``rig.lockstep_timeout`` of wall time, for the chain (every node with ``use_sim_time``) to
+answer each such tick before it steps on (:mod:`clutch_ros.nodes.lockstep`); frames are then
+stamped with that clock. A run is then the same however loaded the machine is; /diagnostics
+counts the waits that expired (``lockstep_timeouts``, WARN).
+
 The rig's CAN database is ``bridge.dbc_file``, the bridge's parameter (empty: the package's
 ``params/rig.dbc``). Only ``rig.slip_speed`` changes at run time (operator mode); the bus, the
 DBC, the plant, the scenario, the step and the seed are read-only (fixed when the simulation
@@ -35,10 +42,12 @@ from rclpy.node import Node
 from clutch_ros.canbus import BusConfig, ReconnectingBus
 from clutch_ros.canbus.dbc import RigDatabase
 from clutch_ros.nodes.diagnostics import Diagnostics
+from clutch_ros.nodes.lockstep import LockStepSync, time_frame
 from clutch_ros.nodes.parameters import DBC_FILE_PARAM, ParamSpec, declare_params
 from clutch_ros.nodes.runner import run_node
 from clutch_ros.rig import RigPlant, RigSimulator
 from clutch_ros.rig.can_io import RigCanPort
+from clutch_ros.rig.errors import RigConfigError
 from clutch_ros.rig.scenario import Scenario, ScenarioPoint, scenario_from_spec
 
 NAME = "rig_sim"
@@ -64,6 +73,20 @@ PARAMS = [
               "rad/s", -100.0, 100.0),
     ParamSpec("rig.dt", 0.001, "simulation step; read-only: the run's time base is fixed at "
               "start", "s", 1e-4, 0.01, read_only=True),
+    ParamSpec("rig.lockstep", False, "publish /clock and wait for the chain (use_sim_time "
+              "nodes) every rig.lockstep_period instead of keeping real time; read-only: the "
+              "run's time base is fixed at start", read_only=True),
+    ParamSpec("rig.lockstep_period", 0.01, "lock-step: simulation time between /clock ticks, "
+              "a whole number of rig.dt (the controller's and the bridge's period); read-only: "
+              "fixed at start", "s", 1e-4, 1.0, read_only=True),
+    ParamSpec("rig.lockstep_timeout", 2.0, "lock-step: wall time the rig waits for the chain's "
+              "answer to a tick before it goes on (counted); read-only: fixed at start", "s",
+              0.01, 60.0, read_only=True),
+    ParamSpec("rig.lockstep_request", False, "lock-step: once a torque_request came, also wait "
+              "for the one stamped at each tick before sending the tick's frames (a request "
+              "source on use_sim_time publishing on every /clock, as clutch demo's): the "
+              "controller has the tick's request before its estimate; read-only: fixed at start",
+              read_only=True),
     ParamSpec("rig.seed", 0, "seed of the sensor variation and noise; read-only: drawn at start",
               "", 0, 2**31 - 1, read_only=True),
 ]
@@ -108,24 +131,44 @@ class RigSimNode(Node):
         database = RigDatabase(cfg["bridge.dbc_file"] or None)  # (before the bus is opened)
         self._bus = ReconnectingBus(BusConfig.from_params(cfg))
         self._port = RigCanPort(self._bus, database)
+        self._lockstep = None
+        stamp_clock = time.time
+        if cfg["rig.lockstep"]:
+            every = round(cfg["rig.lockstep_period"] / cfg["rig.dt"])
+            if every < 1 or abs(every * cfg["rig.dt"] - cfg["rig.lockstep_period"]) > 1e-9:
+                raise RigConfigError(f"rig.lockstep_period {cfg['rig.lockstep_period']} s is "
+                                     f"not a whole number of rig.dt {cfg['rig.dt']} s")
+            self._lockstep = LockStepSync(self, cfg["rig.dt"], every,
+                                          cfg["rig.lockstep_timeout"],
+                                          lambda: self._port.poll(self._sim.time),
+                                          send_time=lambda ns: self._bus.send(
+                                              time_frame(ns), timeout=0.05),
+                                          wait_request=cfg["rig.lockstep_request"])
+            stamp_clock = self._lockstep_stamp
         self._sim = RigSimulator(plant, self._scenario, self._port, dt=cfg["rig.dt"],
-                                 stamp_clock=time.time)
+                                 stamp_clock=stamp_clock, lockstep=self._lockstep)
         self._stats = None
         self._lost_reported = 0.0  # [s] sim.lost_time at the last /diagnostics report
+        self._timeouts_reported = 0  # lock-step timeouts at the last WARN
         self._thread = threading.Thread(target=self._run, name="rig_sim", daemon=True)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose, hardware_id=(
             f"simulated rig ({cfg['can.interface']}:{cfg['can.channel']})"))
         self._thread.start()
-        self.get_logger().info(f"simulated rig running scenario '{self._scenario.name}' on "
+        self.get_logger().info(f"simulated rig running scenario '{self._scenario.name}' "
+                               f"{'in lock-step ' if self._lockstep else ''}on "
                                f"{cfg['can.interface']}:{cfg['can.channel']} with DBC "
                                f"{database.path}")
+
+    def _lockstep_stamp(self) -> float:
+        assert self._lockstep is not None  # (only passed in lock-step)
+        return self._lockstep.stamp(self._sim.time)
 
     def _run(self) -> None:
         duration = math.inf if (self._scenario.repeat or self._scenario.duration == math.inf) \
             else self._scenario.duration
         try:
-            self._stats = self._sim.run(duration, realtime=True)
+            self._stats = self._sim.run(duration, realtime=self._lockstep is None)
             if not self._stats.stopped:  # (a stop comes from close(), after rclpy shut down)
                 self.get_logger().info(f"scenario done: {self._stats}")
         except Exception as err:  # noqa: BLE001 - reported, the node keeps its diagnostics
@@ -153,6 +196,9 @@ class RigSimNode(Node):
                   "requested_pressure_pa": port.requested_pressure(sim.time),
                   "own_echoes_dropped": self._bus.own_echoes,
                   "overruns": sim.overruns, "lost_time_s": sim.lost_time}
+        lockstep = self._lockstep
+        if lockstep is not None:
+            values.update(lockstep.values())
         if sim.signals is not None:
             values.update(actuating_pressure_pa=sim.signals.actuating_pressure,
                           true_torque_nm=sim.signals.true_torque,
@@ -161,6 +207,10 @@ class RigSimNode(Node):
             if self._stats is not None:
                 return "OK", f"scenario '{self._scenario.name}' done", values
             return "WARN", "simulation not running", values
+        if lockstep is not None and lockstep.timeouts > self._timeouts_reported:
+            self._timeouts_reported = lockstep.timeouts
+            return "WARN", (f"lock-step: {lockstep.timeouts} waits for the chain expired; "
+                            f"last: {lockstep.last_timeout}"), values
         lost, self._lost_reported = sim.lost_time - self._lost_reported, sim.lost_time
         if lost > 0.0:  # the plant did not run for that long: a slowed world, not a rig's
             return "WARN", (f"simulation fell behind real time and dropped {lost:.3f} s since "
@@ -170,6 +220,8 @@ class RigSimNode(Node):
     def close(self) -> None:
         """Stop the simulation thread and close the bus."""
         self._sim.stop()
+        if self._lockstep is not None:
+            self._lockstep.stop()
         self._thread.join(timeout=2.0)
         self._bus.shutdown()
 

@@ -18,6 +18,14 @@ passed in (``realtime=True``). A real-time loop that falls more than ``max_lag``
 (a stalled machine) drops the lost time instead of bursting and counts an overrun. ``stop()``
 ends a run from another thread (the ROS node runs the loop in a thread). Runs continue where
 the previous one ended.
+
+Lock-step (``lockstep``, a :class:`LockStep`): the run is paced by the chain that answers the
+rig instead of by a clock. Every ``lockstep.every`` ticks (a sync tick) step 4 becomes: call
+``lockstep.before_frames(t)`` (publish the time), send the frames due, call
+``lockstep.after_frames(t)`` (wait for the chain's answer to them, the pump request of the
+next steps); between
+sync ticks no frames are sent (a frame due then goes out at the next sync tick, once: the
+scheduler does not burst). Run it with ``realtime=False``: the waits are the pacing.
 """
 
 from __future__ import annotations
@@ -35,7 +43,7 @@ from clutch_ros.rig.errors import RigConfigError, check_positive
 from clutch_ros.rig.plant import RigPlant, RigSignals
 from clutch_ros.rig.scenario import Scenario
 
-__all__ = ["CanPort", "RigSimulator", "RunStats", "run_offline"]
+__all__ = ["CanPort", "LockStep", "RigSimulator", "RunStats", "run_offline"]
 
 
 class CanPort(Protocol):
@@ -55,6 +63,18 @@ class CanPort(Protocol):
 
     def send_due(self, now: float, signals: Any, timestamp: float | None = None) -> int:
         """Send the frames due at ``now`` [s] carrying ``signals``; return how many."""
+
+
+class LockStep(Protocol):
+    """What the simulator needs of a lock-step partner (:mod:`clutch_ros.nodes.lockstep`)."""
+
+    every: int  # ticks per sync tick (>= 1)
+
+    def before_frames(self, t: float) -> None:
+        """At sync tick ``t`` [s], before its frames are sent (publish the time)."""
+
+    def after_frames(self, t: float) -> None:
+        """At sync tick ``t`` [s], after its frames were sent (wait for the chain's answer)."""
 
 
 @dataclass
@@ -94,6 +114,8 @@ class RigSimulator:
         stamp_clock: returns the timestamp [s] written into sent frames (default: the
             simulation time); a ROS node passes its wall clock
         reset_plant: reset the plant to the scenario's start temperature now
+        lockstep: pace the run by a chain that answers (see the module docstring); None:
+            every tick sends its due frames at once
 
     """
 
@@ -102,7 +124,7 @@ class RigSimulator:
                  pressure_source: Callable[[float, RigSignals | None], float] | None = None,
                  on_step: Callable[[RigSignals], None] | None = None,
                  stamp_clock: Callable[[], float] | None = None,
-                 reset_plant: bool = True) -> None:
+                 reset_plant: bool = True, lockstep: LockStep | None = None) -> None:
         self.plant = plant
         self.scenario = scenario
         self.port = port
@@ -110,6 +132,11 @@ class RigSimulator:
         self.pressure_source = pressure_source
         self.on_step = on_step
         self.stamp_clock = stamp_clock
+        self.lockstep = lockstep
+        if lockstep is not None and (isinstance(lockstep.every, bool)
+                                     or not isinstance(lockstep.every, int)
+                                     or lockstep.every < 1):
+            raise RigConfigError(f"lock-step period must be >= 1 tick, got {lockstep.every!r}")
         if scenario.closed_loop and port is None and pressure_source is None:
             raise RigConfigError("a closed-loop scenario needs a CAN port or a pressure_source")
         self.time = 0.0
@@ -150,12 +177,21 @@ class RigSimulator:
         self.steps += 1
         self.time = self.steps * self.dt
         self.signals = signals
-        if self.port is not None:
-            stamp = self.stamp_clock() if self.stamp_clock is not None else None
-            self.port.send_due(self.time, signals, timestamp=stamp)
+        lockstep = self.lockstep
+        if lockstep is not None and self.steps % lockstep.every == 0:
+            lockstep.before_frames(self.time)
+            self._send(signals)
+            lockstep.after_frames(self.time)
+        elif lockstep is None:
+            self._send(signals)
         if self.on_step is not None:
             self.on_step(signals)
         return signals
+
+    def _send(self, signals: RigSignals) -> None:
+        if self.port is not None:
+            stamp = self.stamp_clock() if self.stamp_clock is not None else None
+            self.port.send_due(self.time, signals, timestamp=stamp)
 
     def run(self, duration: float, realtime: bool = True,
             clock: Callable[[], float] = time.monotonic,

@@ -73,6 +73,7 @@ def test_every_parameter_is_declared_and_every_parameter_file_loads():
         for node in desc.nodes:
             module = __import__(f"clutch_ros.nodes.{node.executable}", fromlist=["PARAMS"])
             declared = {s.name for s in module.PARAMS} | {s.name for s in model_param_specs()}
+            declared.add("use_sim_time")  # ROS's own, on every node (sim.launch.xml lockstep)
             for name, _ in node.params:
                 assert name in declared, f"{path.name}: {node.executable} has no parameter {name}"
             for file in node.param_files:
