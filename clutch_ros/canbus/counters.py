@@ -292,3 +292,14 @@ class PublishPacer:
     def refund(self) -> None:
         """Give back the token of an allowed publication that did not happen (nothing new)."""
         self._tokens = min(self.burst, self._tokens + 1.0)
+
+    def until_allowed(self, now: float) -> float:
+        """Return how long [s] after ``now`` the next publication can be allowed (0: at once).
+
+        No publication, whatever the frame, is allowed earlier (each needs a token), so a
+        receiver may leave the frames queued until then and read them in one batch.
+        """
+        if self._last is None:
+            return 0.0
+        tokens = self._tokens + max(0.0, now - self._last) * self.rate
+        return 0.0 if tokens >= 1.0 else (1.0 - tokens) / self.rate

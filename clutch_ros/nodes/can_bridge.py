@@ -14,7 +14,11 @@ the live sample, diagnosed), and published only while active. The thread takes e
 queued at a wake-up as plain tuples (:meth:`~clutch_ros.canbus.ReconnectingBus.recv_batch`:
 on udp_multicast no python-can Message per frame) and decodes rig frames from tables
 compiled from the DBC (:mod:`clutch_ros.canbus.fastdecode`); foreign identifiers are counted
-and never decoded. Each frame takes
+and never decoded. With ``bridge.publish_on``, after a batch the thread leaves the frames
+queued in the socket until ``HOLD_MARGIN`` before the pacer can publish again
+(:meth:`~clutch_ros.canbus.counters.PublishPacer.until_allowed`), then reads them in one
+batch, paced on their bus times as before: ~200 reads/s at the demo's 2,500 frames/s instead
+of ~900 (each wake-up had cost more CPU than the frames it read). Each frame takes
 one path: the assembler decodes it into the live sample, the pacer decides, the sample
 becomes ``rig_state`` stamped with the newest contributing frame's bus time: at once when
 the ``bridge.publish_on`` frame arrives (at most ``bridge.rate``), or on a ``bridge.rate``
@@ -103,6 +107,9 @@ NAME = "can_bridge"
 IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning
 SEND_TIMEOUT = 0.005  # [s] a pump request never blocks the executor longer
 FLUSH_PERIOD = 0.05  # [s] with publish_on: a frame held back by bridge.rate goes out then
+#: [s] with publish_on, the receive thread leaves the frames queued in the socket until this
+#: long before the pacer can publish again (each wake-up cost more CPU than its frames)
+HOLD_MARGIN = 0.001
 OK, FAIL = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 
 
@@ -341,6 +348,24 @@ class CanBridgeNode(LifecycleNode):
                 continue
             for frame in frames:
                 on_frame(frame)
+            if frames:
+                hold = self._hold()
+                if hold > 0.0:
+                    stop.wait(hold)
+
+    def _hold(self) -> float:
+        """How long [s] the receive thread may leave frames queued: see HOLD_MARGIN."""
+        st = self.state
+        pacer, assembler, offset = st.pacer, st.assembler, st.offset
+        assert pacer is not None and assembler is not None  # configured
+        newest = assembler.newest_time
+        if pacer.trigger is None or newest is None or offset is None or not st.active:
+            return 0.0
+        with self._lock:
+            wait = pacer.until_allowed(newest)
+        # at most FLUSH_PERIOD: at a low bridge.rate a full bus would fill the socket buffer
+        return min(newest + offset + wait - HOLD_MARGIN - time.time(), 1.0 / pacer.rate,
+                   FLUSH_PERIOD)
 
     def _on_frame(self, frame: RawFrame) -> None:
         """Receive thread: frame -> live sample -> (pacer) -> rig_state when active."""

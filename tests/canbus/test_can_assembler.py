@@ -304,3 +304,30 @@ def test_publish_pacer_trigger_rate_cap_and_fallback():
     assert pacer.flush(0.0)
     with pytest.raises(ValueError):
         PublishPacer(0.0, speed)
+
+
+def test_publish_pacer_until_allowed_is_the_first_moment_any_frame_can_publish():
+    """The bridge's receive thread sleeps until then: no publication may fall before it."""
+    import copy
+
+    from clutch_ros.canbus.counters import PublishPacer
+
+    fast, speed = 0x100, 0x101
+    pacer = PublishPacer(100.0, speed, frozenset({fast, speed}))
+    assert pacer.until_allowed(0.0) == 0.0  # nothing published yet
+    waits = []
+    for k in range(400):  # RigFast and RigSpeed at 1 kHz, the trigger missing for a while
+        now = 0.001 * k
+        wait = pacer.until_allowed(now)
+        waits.append(wait)
+        if wait > 0.0:
+            for key in (speed, fast):  # neither the trigger nor a fallback frame before it
+                early = copy.deepcopy(pacer)
+                assert not early.on_frame(key, now + wait - 1e-6)
+            on_time = copy.deepcopy(pacer)
+            assert on_time.on_frame(speed, now + wait + 1e-9)
+        pacer.on_frame(fast, now)
+        if not 100 <= k < 200:
+            pacer.on_frame(speed, now + 0.0002)
+    assert max(waits) == pytest.approx(0.0092, abs=1e-6)  # a token per 10 ms, 0.8 ms gone
+    assert 0.5 < sum(w > 0.0 for w in waits) / len(waits) < 1.0
