@@ -160,14 +160,8 @@ class LeanExecutor(SingleThreadedExecutor):
         """
         return super().shutdown(timeout_sec)
 
-    def _lean_once(self, timeout_sec: float | None) -> None:
-        if self._tasks:  # a coroutine callback is pending: rclpy's iteration runs tasks
-            self._release()
-            super().spin_once(timeout_sec)
-            return
-        if self._wait_set is None:
-            self._build()
-        ws = self._wait_set
+    def _fill(self, ws) -> None:
+        """Clear the kept wait set and add every kept handle and waitable to it."""
         sub_h, tmr_h, cli_h, srv_h, gc_h = self._handles
         ws.clear_entities()
         for h in sub_h:
@@ -182,6 +176,23 @@ class LeanExecutor(SingleThreadedExecutor):
             ws.add_guard_condition(h)
         for wt, _node in self._waitables:
             wt.add_to_wait_set(ws)
+
+    def _lean_once(self, timeout_sec: float | None) -> None:
+        if self._tasks:  # a coroutine callback is pending: rclpy's iteration runs tasks
+            self._release()
+            super().spin_once(timeout_sec)
+            return
+        if self._wait_set is None:
+            self._build()
+        try:
+            self._fill(self._wait_set)
+        except InvalidHandle:
+            # an entity destroyed by a callback of the last iteration (a lifecycle cleanup
+            # destroys publishers and their QoS event handlers from a service callback): the
+            # guard condition that says so is only seen by the next wait, so rebuild now
+            self._build()
+            self._fill(self._wait_set)
+        ws = self._wait_set
         ws.wait(timeout_sec_to_nsec(timeout_sec))
         if self._is_shutdown:
             return

@@ -118,3 +118,55 @@ def test_lean_executor_runs_every_entity_kind_and_stops_on_context_shutdown():
                for m in node.received)
     executor.shutdown()
     node.destroy_node()
+
+
+class _Cleanup(Node):
+    """Destroys its publisher (and so the publisher's QoS event handler) from a service."""
+
+    def __init__(self, context):
+        super().__init__("lean_probe_node", context=context)
+        self.pub = self.create_publisher(RigState, "rig_state_out", 10)
+        self.declare_parameter("gain", 1.0)
+        self.add_on_set_parameters_callback(self._on_set)
+
+    def _on_set(self, params):
+        if self.pub is not None:  # as CanBridgeNode.on_cleanup does in change_state
+            self.destroy_publisher(self.pub)
+            self.pub = None
+        return SetParametersResult(successful=True)
+
+
+def test_an_entity_destroyed_by_a_service_callback_leaves_the_executor_serving():
+    """Regression: the kept wait set still held the destroyed publisher's event handler.
+
+    Its next fill raised InvalidHandle out of spin (the can_bridge process died after a
+    lifecycle cleanup, so its get_state was never answered).
+    """
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    node = _Cleanup(context)
+    executor = LeanExecutor(context=context)
+    executor.add_node(node)
+    errors: list = []
+
+    def spin() -> None:
+        try:
+            executor.spin()
+        except ExternalShutdownException:
+            pass
+        except Exception as err:  # noqa: BLE001 - reported by the test
+            errors.append(err)
+
+    thread = threading.Thread(target=spin, daemon=True)
+    thread.start()
+    try:
+        with Harness("lean_peer") as peer:
+            assert _set(peer, 2.0).successful  # destroys the publisher in the callback
+            assert _set(peer, 3.0).successful  # still answered after that
+    finally:
+        rclpy.try_shutdown(context=context)
+        thread.join(10.0)
+    assert not errors, errors
+    assert node.pub is None and node.get_parameter("gain").value == 3.0
+    executor.shutdown()
+    node.destroy_node()
