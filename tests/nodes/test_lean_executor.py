@@ -69,12 +69,8 @@ def _set(peer: Harness, value: float):
     return peer.call(client, req).results[0]
 
 
-def test_lean_executor_runs_every_entity_kind_and_stops_on_context_shutdown():
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    node = _Lean(context)
-    executor = LeanExecutor(context=context)
-    executor.add_node(node)
+def _spin_in_thread(executor) -> tuple[threading.Thread, list]:
+    """Spin ``executor`` on a daemon thread; its exceptions (not a shutdown) go to the list."""
     errors: list = []
 
     def spin() -> None:
@@ -87,6 +83,16 @@ def test_lean_executor_runs_every_entity_kind_and_stops_on_context_shutdown():
 
     thread = threading.Thread(target=spin, daemon=True)
     thread.start()
+    return thread, errors
+
+
+def test_lean_executor_runs_every_entity_kind_and_stops_on_context_shutdown():
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    node = _Lean(context)
+    executor = LeanExecutor(context=context)
+    executor.add_node(node)
+    thread, errors = _spin_in_thread(executor)
     try:
         with Harness("lean_peer") as peer:
             pub = peer.node.create_publisher(RigState, "rig_state", sensor_qos())
@@ -147,18 +153,7 @@ def test_an_entity_destroyed_by_a_service_callback_leaves_the_executor_serving()
     node = _Cleanup(context)
     executor = LeanExecutor(context=context)
     executor.add_node(node)
-    errors: list = []
-
-    def spin() -> None:
-        try:
-            executor.spin()
-        except ExternalShutdownException:
-            pass
-        except Exception as err:  # noqa: BLE001 - reported by the test
-            errors.append(err)
-
-    thread = threading.Thread(target=spin, daemon=True)
-    thread.start()
+    thread, errors = _spin_in_thread(executor)
     try:
         with Harness("lean_peer") as peer:
             assert _set(peer, 2.0).successful  # destroys the publisher in the callback
