@@ -235,7 +235,10 @@ class CanBridgeNode(LifecycleNode):
     def _halt(self, why: str) -> None:
         """Stop sending and publishing; a last 0 bar PumpRequest when the bus is open."""
         st = self.state
-        was_active, st.active = st.active, False
+        # under the lock the receive thread publishes with: a publish that passed its
+        # "active" check has ended when this returns, so none follows the transition
+        with self._lock:
+            was_active, st.active = st.active, False
         for timer in (self._pump_timer, self._flush_timer):
             if timer is not None:
                 timer.cancel()
@@ -384,7 +387,10 @@ class CanBridgeNode(LifecycleNode):
             if not st.active:
                 return
             if self._raw_pub is not None:
-                self._raw_pub.publish(can_frame_to_ros(frame_message(frame), st.offset or 0.0))
+                raw = can_frame_to_ros(frame_message(frame), st.offset or 0.0)
+                with self._lock:  # (see _halt)
+                    if st.active:
+                        self._raw_pub.publish(raw)
             if key is None:
                 return
             if key == gate.codec.spec.key:  # ours never come back (echoes removed)
