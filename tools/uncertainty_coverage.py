@@ -39,18 +39,11 @@ import numpy as np
 from clutch_ros.config.params_file import load_flat, load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model import uncertainty as unc
-from clutch_ros.offline.band import BAND_MODES, fit_band, replay_series
+from clutch_ros.offline.band import BAND_MODES, band_mode, fit_band, replay_series
 from clutch_ros.offline.golden import PLANT
 from clutch_ros.offline.rig_runs import GOLDEN_RUNS, golden_scenario, simulate_run, write_run
 
 GOLDEN = Path(__file__).resolve().parents[1] / "tests" / "data" / "golden" / "bags"
-
-
-def _file_mode(flat) -> str:
-    """Return the band mode a parameter file's ``adapt.*`` run (absent: the node's defaults)."""
-    if not flat.get("adapt.enabled", True):
-        return "fixed"
-    return "adapted_gain" if flat.get("adapt.spline_gain", False) else "adapted"
 
 
 def _simulate(name: str, k: int, plant: str, path: Path) -> Path:
@@ -95,7 +88,7 @@ def main() -> int:
                          "adapted_gain" if args.adapt_gain else "adapted")
     if args.file_band:
         flat = load_flat(preset_path(args.params))
-        mode = _file_mode(flat)
+        mode = band_mode(flat)
     fitted = args.fit.split(",")
     skip = set(fitted) | set(filter(None, args.exclude.split(",")))
     base = replace(unc.DEFAULTS, time_constant=args.time_constant)

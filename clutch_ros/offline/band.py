@@ -34,7 +34,8 @@ from clutch_ros.offline.replay import (
     stamps_s,
 )
 
-__all__ = ["BAND_MODES", "band_extra", "band_settings", "fit_band", "replay_series"]
+__all__ = ["BAND_MODES", "band_extra", "band_mode", "band_settings", "fit_band",
+           "replay_series"]
 
 #: How the estimate the band belongs to is computed (module docstring); the first: default.
 BAND_MODES = ("adapted", "adapted_gain", "fixed")
@@ -59,6 +60,16 @@ def band_extra(mode: str) -> dict[str, Any]:
     settings = band_settings(mode)
     return {"adapt.enabled": settings is not None,
             "adapt.spline_gain": settings is not None and settings.spline_gain}
+
+
+def band_mode(flat: Any) -> str:
+    """Return the mode the ``adapt.*`` of a parameter file (dotted keys) run.
+
+    The inverse of :func:`band_extra`; absent keys take the node's defaults (``adapted``).
+    """
+    if not flat.get("adapt.enabled", True):
+        return "fixed"
+    return "adapted_gain" if flat.get("adapt.spline_gain", False) else "adapted"
 
 
 def replay_series(bag: str | Path, params: Any, mode: str) -> dict[str, np.ndarray]:
