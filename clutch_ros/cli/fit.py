@@ -29,6 +29,11 @@ file's header carries no clock time, so the same bags and options write the same
 idle or a loaded machine. ``--fit-compliance`` identifies the drivetrain compliance
 (``drivetrain.stiffness``, ``drivetrain.damping``) too; without it they keep the base values.
 
+The torque uncertainty (``uncertainty.*``, :mod:`clutch_ros.model.uncertainty`) is identified
+on the fit bags replayed as the estimator node runs the ``--band`` mode (default ``adapted``:
+the node's online adaptation; :mod:`clutch_ros.offline.band`), and the file gets the
+``adapt.enabled`` / ``adapt.spline_gain`` of that mode.
+
 ``--law auto`` fits every passive law and writes the one with the lowest mean RMSE ratio
 model / Eq. 1 on the ``--validate`` bags (on the fit bags without them), printing the ratio
 per law and per validation run; ``--validate`` with one law scores just that law.
