@@ -3,6 +3,7 @@
     .venv/bin/python tools/uncertainty_coverage.py [--fit table3_seq2_10rpm[,run...]]
         [--sim-seeds 2] [--plant rig_truth_elastic] [--params flexiforce_8] [--no-golden]
         [--exclude run,...] [--fit-on-plant] [--write-fit-runs DIR] [--adapt [--adapt-gain]]
+        [--band fixed|adapted|adapted_gain] [--file-band]
 
 Runs: the golden bags (tests/data/golden/bags) and, with ``--sim-seeds N``, N fresh runs of
 the simulated rig (truth plant ``--plant``, default the golden bags' ``rig_truth_elastic``)
@@ -17,7 +18,10 @@ the estimator's parameters on them with ``clutch fit``) and exits. ``--adapt``: 
 (fitting runs included) is replayed with the online adaptation, as the estimator node runs it
 by default when a torque sensor is there (``adapt.enabled``; a fresh estimator per run, default
 ``adapt.*`` settings; ``--adapt-gain`` also adapts the spline gain, ``adapt.spline_gain``), so
-the error model is the one of the adapted estimate.
+the error model is the one of the adapted estimate (``--band`` names the mode as ``clutch fit
+--band`` does: ``--adapt`` is ``adapted``, ``--adapt --adapt-gain`` ``adapted_gain``;
+:mod:`clutch_ros.offline.band`). ``--file-band``: fit nothing, check the ``uncertainty.*`` of
+the ``--params`` file (as ``clutch fit --band`` wrote it), in the mode its ``adapt.*`` say.
 """
 
 from __future__ import annotations
@@ -32,37 +36,14 @@ from pathlib import Path
 
 import numpy as np
 
-from clutch_ros.config.params_file import load_params
+from clutch_ros.config.params_file import load_flat, load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model import uncertainty as unc
-from clutch_ros.model.adaptation import AdaptationSettings
-from clutch_ros.offline.adapt import adaptive_replay
+from clutch_ros.offline.band import BAND_MODES, band_mode, fit_band, replay_series
 from clutch_ros.offline.golden import PLANT
-from clutch_ros.offline.replay import (
-    fit_error_model_on_bags,
-    fit_error_model_on_series,
-    replay_bag,
-    stamps_s,
-)
 from clutch_ros.offline.rig_runs import GOLDEN_RUNS, golden_scenario, simulate_run, write_run
 
 GOLDEN = Path(__file__).resolve().parents[1] / "tests" / "data" / "golden" / "bags"
-
-
-def _series(bag: Path, params, adapt: AdaptationSettings | None = None):
-    """Return ``t, modelled, measured, slip, pressure`` of one replay (adaptive with ``adapt``)."""
-    if adapt is None:
-        result = replay_bag(bag, params, per_lamella=False, pipeline=False)
-    else:
-        result = adaptive_replay([bag], params, adapt)[0].result
-    b = result.batch
-    return (stamps_s(result.rig), b.modelled_torque, b.measured_torque,
-            b.slip_speed_filtered, b.actuating_pressure)
-
-
-def _published(series):
-    """``(t, modelled, measured, slip)`` of a run (rejected rows: NaN torque) for a fit."""
-    return series[:4]
 
 
 def _simulate(name: str, k: int, plant: str, path: Path) -> Path:
@@ -95,13 +76,22 @@ def main() -> int:
                     help="replay every run with the online adaptation (the node's default)")
     ap.add_argument("--adapt-gain", action="store_true",
                     help="with --adapt: also adapt the spline gain (adapt.spline_gain)")
+    ap.add_argument("--band", choices=BAND_MODES, default=None,
+                    help="the estimate the band is fitted and checked on (default: fixed, "
+                         "or as --adapt/--adapt-gain say)")
+    ap.add_argument("--file-band", action="store_true",
+                    help="check the --params file's uncertainty.* (fit nothing)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     params = load_params(preset_path(args.params))
+    mode = args.band or ("fixed" if not args.adapt else
+                         "adapted_gain" if args.adapt_gain else "adapted")
+    if args.file_band:
+        flat = load_flat(preset_path(args.params))
+        mode = band_mode(flat)
     fitted = args.fit.split(",")
     skip = set(fitted) | set(filter(None, args.exclude.split(",")))
     base = replace(unc.DEFAULTS, time_constant=args.time_constant)
-    adapt = AdaptationSettings(spline_gain=args.adapt_gain) if args.adapt else None
     rows = []
     runs = [] if args.no_golden else [(name, GOLDEN / name) for name in GOLDEN_RUNS
                                       if name not in skip]
@@ -112,24 +102,23 @@ def main() -> int:
             fit_bags = [_simulate(name, 0, args.plant, out / name) for name in fitted]
             if args.write_fit_runs:
                 return 0
-        if adapt is None:
-            model = fit_error_model_on_bags(fit_bags, params, base)
-        else:
-            model = fit_error_model_on_series([_published(_series(bag, params, adapt))
-                                               for bag in fit_bags], base)
+        model = (unc.ErrorModel.from_flat(flat) if args.file_band
+                 else fit_band(fit_bags, params, mode, base))
         for k in range(1, args.sim_seeds + 1):
             for name in (n for n in GOLDEN_RUNS if n not in skip):  # a fitted scenario: seen
                 path = _simulate(name, k, args.plant, Path(tmp) / f"{name}_sim{k}")
                 runs.append((path.name, path))
         for name, bag in runs:
-            t, mod, meas, slip, p = _series(bag, params, adapt)
+            s = replay_series(bag, params, mode)
+            t, mod, slip = s["t"], s["modelled"], s["slip"]
             std = unc.torque_std(model, t, mod, slip)
-            cov = unc.coverage(meas, mod, std, unc.phases(t, p, slip))
+            cov = unc.coverage(s["measured"], mod, std, unc.phases(t, s["pressure"], slip))
             rows.append({"run": name, **cov})
     if args.json:
-        json.dump({"model": model.to_flat(), "runs": rows}, sys.stdout, indent=1)
+        json.dump({"model": model.to_flat(), "band": mode, "runs": rows}, sys.stdout, indent=1)
         return 0
-    sys.stdout.write(f"error model fitted on {args.fit}: {model.to_flat()}\n")
+    source = "of the --params file" if args.file_band else f"fitted on {args.fit}"
+    sys.stdout.write(f"band {mode}, error model {source}: {model.to_flat()}\n")
     sys.stdout.write(f"{'run':32s} {'all':>6s} {'trans':>6s} {'steady':>6s}  n_trans/n\n")
     for r in rows:
         sys.stdout.write(f"{r['run']:32s} {100 * r['coverage_95']:6.1f} "

@@ -29,6 +29,11 @@ file's header carries no clock time, so the same bags and options write the same
 idle or a loaded machine. ``--fit-compliance`` identifies the drivetrain compliance
 (``drivetrain.stiffness``, ``drivetrain.damping``) too; without it they keep the base values.
 
+The torque uncertainty (``uncertainty.*``, :mod:`clutch_ros.model.uncertainty`) is identified
+on the fit bags replayed as the estimator node runs the ``--band`` mode (default ``adapted``:
+the node's online adaptation; :mod:`clutch_ros.offline.band`), and the file gets the
+``adapt.enabled`` / ``adapt.spline_gain`` of that mode.
+
 ``--law auto`` fits every passive law and writes the one with the lowest mean RMSE ratio
 model / Eq. 1 on the ``--validate`` bags (on the fit bags without them), printing the ratio
 per law and per validation run; ``--validate`` with one law scores just that law.
@@ -48,6 +53,7 @@ from clutch_ros.model.calibration import METHODS
 from clutch_ros.model.identification import SAMPLE_BUDGET, FitOptions, fit
 from clutch_ros.model.params import SPLINE_LAWS
 from clutch_ros.numeric_env import usable_cores
+from clutch_ros.offline.band import BAND_MODES, band_extra, fit_band
 from clutch_ros.offline.fit_auto import (
     AutoFitResult,
     compliance_start,
@@ -57,7 +63,6 @@ from clutch_ros.offline.fit_auto import (
     score_law,
 )
 from clutch_ros.offline.flexiforce import load_runs
-from clutch_ros.offline.replay import fit_error_model_on_bags
 
 __all__ = ["add_parser", "run", "main"]
 
@@ -110,6 +115,11 @@ def add_parser(sub) -> None:
                    help="threads computing the finite-difference Jacobian's columns at once "
                         "(default 0: one per core this process may use; 1: one after the "
                         "other); the result is the same")
+    p.add_argument("--band", choices=BAND_MODES, default=BAND_MODES[0],
+                   help="the estimate modelled_torque_std is identified on, replayed as the "
+                        "node runs it: adapted (the friction scale, the node's default), "
+                        "adapted_gain (and the spline gain), fixed (no adaptation); the file "
+                        "gets the adapt.enabled / adapt.spline_gain that run it")
     add_batch_options(p, "bags' reads")
     p.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     p.set_defaults(func=run)
@@ -176,8 +186,10 @@ def run(args) -> int:
               f"fit RMSE {result.rmse:.3f} N m; fitted: "
               + ", ".join(f"{k} = {result.values[k]:.6g} +- {result.stderr[k]:.2g}"
                           for k in result.keys))
-    error_model = fit_error_model_on_bags(args.bags, result.params)  # modelled_torque_std
-    write_params(result.params, out, header=header, extra=error_model.to_flat())
+    error_model = fit_band(args.bags, result.params, args.band)  # modelled_torque_std
+    header += f"\nuncertainty.*: the {args.band} estimate's error model (--band)"
+    write_params(result.params, out, header=header,
+                 extra={**error_model.to_flat(), **band_extra(args.band)})
     cal = info["calibration"]
     if args.json:
         doc = result.to_dict()
@@ -188,7 +200,7 @@ def run(args) -> int:
                    calibration_comparison=(None if info["comparison"] is None
                                            else _comparison_brief(info["comparison"])),
                    calibration_error=info["calibration_error"],
-                   uncertainty=error_model.to_flat())
+                   uncertainty=error_model.to_flat(), band=args.band)
         if auto is not None:
             doc.update(auto=[s.to_dict() for s in auto.scores], best_law=auto.best.law,
                        validated_on=auto.validated_on)

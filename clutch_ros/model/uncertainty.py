@@ -7,22 +7,29 @@ the replay with the same loop, :func:`torque_std`):
 * ``T`` = ``|modelled_torque|`` [N m];
 * ``R`` = ``|dT/dt|`` low-pass filtered with ``time_constant`` [N m/s] (first order, the
   backward difference of the modelled torque; a gap above ``max_gap`` restarts it at 0);
-* ``S`` = 1 while the clutch sticks (``|slip_speed_filtered| < stick_speed``), else 0.
+* ``S`` = 1 while the clutch sticks (``|slip_speed_filtered| < stick_speed``), else 0;
+* ``L`` = ``R / |slip_speed_filtered|`` [N m / rad] while the clutch slips (``|slip| >=
+  slip_floor``), else 0: the rate over the slip speed. Through the drivetrain's compliance
+  the torque builds up in proportion to the slip speed (the thesis's Test A: a 3-4 s delay
+  at the lowest slip speed), so the time by which the model can be off in a transient grows
+  as the slip speed falls: ``rate_time * R`` is an error of a fixed time (any transient, the
+  stuck clutch's too), ``rate_slip * L`` one of a fixed twist angle ``rate_slip`` [rad].
 
 The independent parts add in quadrature (variances add; a sum of standard deviations would
 count the sensor's noise again in every term)::
 
-    sigma = sqrt(noise^2 + base^2 + (rel * T)^2 + (rate_time * R)^2 + (stick_rel * S * T)^2)
+    sigma = sqrt(noise^2 + base^2 + (rel * T)^2 + (rate_time * R)^2 + (stick_rel * S * T)^2
+                 + (rate_slip * L)^2)
 
 :func:`fit_error_model` identifies them on a fitting run in two steps. ``noise`` [N m], the
 torque sensor's own noise, comes first and apart from the model terms: the residual's robust
 std over the samples where the model says the clutch carries nothing (``|modelled|`` at most
 ``QUIET_FRACTION`` of the run's largest: a residual there is the sensor's noise, whatever the
-model). ``base`` [N m], ``rel`` [1], ``rate_time`` [s] and ``stick_rel`` [1] are then the
-Gaussian maximum-likelihood fit of the residuals (``sum(log sigma + r^2 / (2 sigma^2))``,
-minimised over the logarithms of the four, so each stays >= 0, from several starts: it has
-local minima; a term whose feature the run lacks goes to 0) with ``noise`` fixed. Last,
-one quantile calibration scales the four model terms (not the sensor's noise) so that 95 %
+model). ``base`` [N m], ``rel`` [1], ``rate_time`` [s], ``stick_rel`` [1] and ``rate_slip``
+[rad] are then the Gaussian maximum-likelihood fit of the residuals (``sum(log sigma + r^2 /
+(2 sigma^2))``, minimised over the logarithms of the five, so each stays >= 0, from several
+starts: it has local minima; a term whose feature the run lacks goes to 0) with ``noise``
+fixed. Last, one quantile calibration scales the model terms (not the sensor's noise) so that 95 %
 of the fitting run's ``|residual| / sigma`` are below 1.96. The parameters live in the
 parameter file under ``uncertainty.*`` (:data:`DEFAULTS` when absent).
 
@@ -89,9 +96,12 @@ class ErrorModel:
         rel: part proportional to ``|modelled_torque|`` [1], >= 0.
         rate_time: part proportional to the filtered ``|dT/dt|`` [s], >= 0.
         stick_rel: extra part proportional to the torque while the clutch sticks [1], >= 0.
+        rate_slip: part proportional to the filtered ``|dT/dt|`` over the slip speed
+            (``L``, module docstring) [rad], >= 0.
         time_constant: low-pass time constant of the torque rate [s], > 0.
         stick_speed: slip speed below which the clutch counts as sticking [rad/s], > 0.
         max_gap: a time step above it (or not positive) restarts the rate filter [s], > 0.
+        slip_floor: ``L`` is 0 below this slip speed (not slipping) [rad/s], > 0.
 
     """
 
@@ -103,10 +113,12 @@ class ErrorModel:
     time_constant: float = 0.1
     stick_speed: float = 0.1
     max_gap: float = 0.5
+    rate_slip: float = 0.0
+    slip_floor: float = 0.5
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
-            positive = name in ("time_constant", "stick_speed", "max_gap")
+            positive = name in ("time_constant", "stick_speed", "max_gap", "slip_floor")
             if not (isinstance(value, (int, float)) and math.isfinite(value)
                     and (value > 0 if positive else value >= 0)):
                 need = "> 0" if positive else ">= 0"
@@ -144,7 +156,7 @@ DEFAULTS = ErrorModel()
 
 def features(model: ErrorModel, t: np.ndarray, modelled: np.ndarray,
              slip: np.ndarray) -> np.ndarray:
-    """Return the (n, 3) features ``T``, ``R``, ``S`` (module docstring) of every sample.
+    """Return the (n, 4) features ``T``, ``R``, ``S``, ``L`` (module docstring) of every sample.
 
     ``t`` [s], ``modelled`` [N m], ``slip`` = ``slip_speed_filtered`` [rad/s]. Non-finite
     torques give NaN rows and leave the filter as it was.
@@ -152,12 +164,14 @@ def features(model: ErrorModel, t: np.ndarray, modelled: np.ndarray,
     t = np.asarray(t, dtype=float)
     modelled = np.asarray(modelled, dtype=float)
     slip = np.asarray(slip, dtype=float)
-    out = np.full((t.size, 3), np.nan)
+    out = np.full((t.size, 4), np.nan)
     state = _RateFilter(model)
     for i in range(t.size):
         rate = state.update(float(t[i]), float(modelled[i]))
         if not math.isnan(rate):
-            out[i] = (abs(modelled[i]), rate, float(abs(slip[i]) < model.stick_speed))
+            speed = abs(float(slip[i]))
+            out[i] = (abs(modelled[i]), rate, float(speed < model.stick_speed),
+                      _lag(model, rate, speed))
     return out
 
 
@@ -184,9 +198,15 @@ class _RateFilter:
         return self.rate
 
 
-def _sigma(model: ErrorModel, torque: float, rate: float, stick: float) -> float:
+def _lag(model: ErrorModel, rate: float, speed: float) -> float:
+    """Return ``L`` [N m/rad] of a filtered rate [N m/s] at a slip speed [rad/s] >= 0."""
+    return rate / speed if speed >= model.slip_floor else 0.0
+
+
+def _sigma(model: ErrorModel, torque: float, rate: float, stick: float, lag: float) -> float:
     return math.sqrt(model.noise ** 2 + model.base ** 2 + (model.rel * torque) ** 2
-                     + (model.rate_time * rate) ** 2 + (model.stick_rel * stick * torque) ** 2)
+                     + (model.rate_time * rate) ** 2 + (model.stick_rel * stick * torque) ** 2
+                     + (model.rate_slip * lag) ** 2)
 
 
 class TorqueStd:
@@ -202,8 +222,9 @@ class TorqueStd:
         rate = self._filter.update(t, modelled)
         if math.isnan(rate):
             return math.nan
-        stick = 1.0 if abs(slip) < self.model.stick_speed else 0.0
-        return _sigma(self.model, abs(modelled), rate, stick)
+        speed = abs(slip)
+        stick = 1.0 if speed < self.model.stick_speed else 0.0
+        return _sigma(self.model, abs(modelled), rate, stick, _lag(self.model, rate, speed))
 
 
 def torque_std(model: ErrorModel, t: np.ndarray, modelled: np.ndarray,
@@ -229,15 +250,16 @@ def fit_error_model(t: np.ndarray, modelled: np.ndarray, measured: np.ndarray,
         raise ModelError(f"the error model needs at least 20 measured samples, got {ok.sum()}")
     x, resid = x[ok], resid[ok]
     noise = sensor_noise(x[:, 0], resid)
-    # columns: the model terms' features (base, rel, rate_time, stick_rel)
-    design = np.column_stack([np.ones(len(x)), x[:, 0], x[:, 1], x[:, 2] * x[:, 0]])
+    # columns: the model terms' features (base, rel, rate_time, stick_rel, rate_slip)
+    design = np.column_stack([np.ones(len(x)), x[:, 0], x[:, 1], x[:, 2] * x[:, 0], x[:, 3]])
     coef = _max_likelihood(design, resid, noise)
-    terms = (design * coef) ** 2 @ np.ones(4)
+    terms = (design * coef) ** 2 @ np.ones(design.shape[1])
     ratio = np.abs(resid) / Z95
     k = _calibration(ratio, noise ** 2, terms)
     coef = coef * k
     return replace(base, noise=noise, base=float(coef[0]), rel=float(coef[1]),
-                   rate_time=float(coef[2]), stick_rel=float(coef[3]))
+                   rate_time=float(coef[2]), stick_rel=float(coef[3]),
+                   rate_slip=float(coef[4]))
 
 
 def sensor_noise(torque: np.ndarray, resid: np.ndarray) -> float:

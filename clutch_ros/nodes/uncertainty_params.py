@@ -31,6 +31,11 @@ UNCERTAINTY_PARAMS = [
               "the clutch counts as sticking", "rad/s", 1e-6, 100.0, read_only=True),
     ParamSpec("uncertainty.max_gap", _D.max_gap, "a sample gap above this restarts the torque "
               "rate filter", "s", 1e-4, 3600.0, read_only=True),
+    ParamSpec("uncertainty.rate_slip", _D.rate_slip, "part proportional to the filtered "
+              "|d modelled torque/dt| over |filtered slip speed| while the clutch slips", "rad",
+              0.0, 1e3, read_only=True),
+    ParamSpec("uncertainty.slip_floor", _D.slip_floor, "|filtered slip speed| from which "
+              "the clutch slips for the rate_slip term", "rad/s", 1e-3, 100.0, read_only=True),
 ]
 
 

@@ -6,8 +6,10 @@ as the node does. The error model is fitted on the adaptive replays of the two r
 estimator parameters were fitted on (tests/data/uncertainty/golden_fit_ff_t.yaml) and checked
 on runs of other scenarios. The adaptation removes part of the systematic error the fixed
 model carries on unseen runs, so the band holds the issue-24 bounds on more of them; not on
-every one yet (12 of 24 unseen golden and simulated runs: benchmarks/RESULTS.md, "2026-11-27
-torque band with the online adaptation"). The runs checked here are ones that meet them.
+every one yet (13 of 24 unseen golden and simulated runs with the rate-over-slip term:
+benchmarks/RESULTS.md, "2026-11-27 torque band with a rate-over-slip term"). The runs checked
+here are ones that meet them (chosen when the table was known: a regression check, not
+evidence of calibration; tests/offline/test_uncertainty_band.py checks the band's structure).
 """
 
 import math
