@@ -220,7 +220,7 @@ class PassiveLaw(SplineLaw):
         np.maximum(normal, 0.0, out=normal)
         bound = normal[:-1] + normal[1:]
         bound *= scale
-        clipped = np.clip(des, -bound, bound)
+        clipped = np.minimum(np.maximum(des, -bound), bound)  # np.clip, without its wrapper
         hi = np.maximum(clipped, 0.0)
         lo = np.minimum(clipped, 0.0)
         f_stick = entry.passive_stick.dot(head)
