@@ -194,6 +194,8 @@ class PackModel:
         x_full[:n_pack, 2:] = x_ss[:, 1:]
         law.fill(a_full, b_full, x_full, n_pack)
         self._modes = _decoupled_modes(self.transition, a_full, n_pack, pk)
+        self._law_diagonal = np.arange(n_pack, nx)
+        self._eye = np.eye(nx)
         self.law = law
         self.layout = layout
         self.a_matrix, self.b_matrix, self.static_gain = a_full, b_full, x_full
@@ -234,7 +236,7 @@ class PackModel:
             dtq = key * res if res > 0.0 else dt
             self.misses += 1
             phi = self._transition(dtq)
-            gamma = (np.eye(phi.shape[0]) - phi) @ self.static_gain
+            gamma = (self._eye - phi) @ self.static_gain
             entry = _Entry(dtq, self.layout, np.hstack([phi, gamma]), self._spring)
             self.law.prepare(entry)
             self._cache[key] = entry
@@ -253,12 +255,11 @@ class PackModel:
         modes = self._modes
         if modes is None:
             return zoh_discretize(self.a_matrix, self.b_matrix, dt)[0]
-        a_full = self.a_matrix
         n_pack = 2 * modes.lamella_count
-        phi = np.zeros_like(a_full)
+        phi = np.zeros_like(self.a_matrix)
         phi[:n_pack, :n_pack] = modes.transition(dt)
-        law_rates = np.diagonal(a_full)[n_pack:]  # the law's block is diagonal here
-        phi[n_pack:, n_pack:] = np.diag(np.exp(law_rates * dt))
+        law = self._law_diagonal  # the law's block is diagonal here
+        phi[law, law] = np.exp(self.a_matrix[law, law] * dt)
         return phi
 
     # -- state ---------------------------------------------------------------------
