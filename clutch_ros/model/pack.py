@@ -174,7 +174,7 @@ class PackModel:
             old is not None and old.pack == params.pack and old.spline == params.spline) \
             else None
         self.params = params
-        pk, fr = params.pack, params.friction
+        pk = params.pack
         n = pk.lamella_count
         law: SplineLaw = make_spline_law(params)
         ns = law.n_states
@@ -216,11 +216,15 @@ class PackModel:
         self._c2k = 2.0 * pk.effective_radius * pk.lamella_stiffness
         self._c2n = 2.0 * pk.effective_radius * n
         self._k_na = pk.lamella_stiffness / (n * pk.piston_area)  # p_eq = k z_N / (N A)
+        self._set_friction(params)
+        self._film = 1.0
+        self._temp = params.friction.temperature_ref
+
+    def _set_friction(self, params: ClutchParams) -> None:
+        fr = params.friction
         self._fr = fr
         self._film_on = fr.film_depth > 0.0
         self._sign_speed = fr.sign_speed
-        self._film = 1.0
-        self._temp = fr.temperature_ref
 
     def discretisation(self, dt: float) -> _Entry:
         """Return the cached discretisation for ``dt`` [s] (``M = [Φ | Γ]``, see statespace)."""
@@ -323,8 +327,14 @@ class PackModel:
         Pack positions/velocities, film and thermal state are kept; the law's states are kept
         when the law is the same (ff_t's filter state y = κ·lowpass(T) is rescaled by
         κ_new/κ_old, as if the new κ had always applied), else the new law starts at rest (no
-        force). A different N resets to equilibrium at the current actuating force.
+        force). A different N resets to equilibrium at the current actuating force. With the
+        same pack and law parameters (the adaptation's friction scale, about once a second
+        live) nothing is rebuilt: the same state, the same bits, in a few µs.
         """
+        if params.pack == self.params.pack and params.spline == self.params.spline:
+            self.params = self.law.params = params
+            self._set_friction(params)
+            return
         old_state, old_law = self._work.copy(), self.law
         old_layout = self.layout
         film, temp = self._film, self._temp
