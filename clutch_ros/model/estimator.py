@@ -125,13 +125,14 @@ class ClutchEstimator:
         max_gap_s: a larger gap between stamps re-initialises to equilibrium [s].
         accuracy_min_torque: below this |modelled| the accuracy is NaN [N m].
         overshoot_limit, undershoot_limit: accuracy thresholds (1.1, 0.9).
+        dt_resolution, transition: the pack's discretisation cache (:class:`PackModel`).
 
     """
 
     def __init__(self, params: ClutchParams, *, max_gap_s: float = 1.0,
                  accuracy_min_torque: float = 1.0,
                  overshoot_limit: float = 1.1, undershoot_limit: float = 0.9,
-                 dt_resolution: float = 1e-5):
+                 dt_resolution: float = 1e-5, transition: str = "auto"):
         if not (max_gap_s > 0.0 and accuracy_min_torque >= 0.0):
             raise InputError(f"max_gap_s must be > 0 and accuracy_min_torque >= 0, got "
                              f"{max_gap_s!r}, {accuracy_min_torque!r}")
@@ -140,7 +141,7 @@ class ClutchEstimator:
         self.accuracy_min_torque = float(accuracy_min_torque)
         self.overshoot_limit = float(overshoot_limit)
         self.undershoot_limit = float(undershoot_limit)
-        self.pack = PackModel(params, dt_resolution=dt_resolution)
+        self.pack = PackModel(params, dt_resolution=dt_resolution, transition=transition)
         self.slip_filter = SlipFilter(params.slip.filter_time_constant)
         self.drive = Drivetrain(params) if params.drivetrain.enabled else None
         self.last_stamp: float | None = None
@@ -226,4 +227,5 @@ class ClutchEstimator:
             sample.rear_pressure, sample.pressure_difference, omega_f, self.params.spline.law,
             acc > self.overshoot_limit, acc < self.undershoot_limit, p,
             sample.lamella_temperature, omega,
-            sample.compression, self.pack.spline_correction(), reinit, slip_c)
+            sample.compression, self.pack.spline_correction(sample.spline_force), reinit,
+            slip_c)

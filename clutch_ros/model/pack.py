@@ -26,9 +26,12 @@ pressure with an intact film; front/rear pressure = S_N / A and S_1 / A, P_diff 
 front − rear (thesis Fig. 20). The torque a spline law sees is the torque magnitude at the
 start of the step (see :mod:`clutch_ros.model.spline`).
 
-The discretisation is cached per dt (``expm`` costs ~0.2 ms): dt is quantised to
-``dt_resolution`` (default 10 µs) and the matrices are built for the quantised value, so a
-jittery 1 kHz stamp (±50 µs) re-uses ~10 entries instead of calling ``expm`` every step.
+The discretisation is cached per dt: dt is quantised to ``dt_resolution`` (default 10 µs) and
+the matrices are built for the quantised value, so a jittery 1 kHz stamp (±50 µs) re-uses ~10
+entries. A new dt's ``e^{A dt}`` comes in closed form from the pack's modes
+(:class:`~clutch_ros.model.discretisation.PackModes`, exact to rounding) for the laws whose
+states are decoupled from the pack (``none``, ``coulomb``, ``ff_t``), else from ``expm``
+(~0.2 ms; ``transition="expm"`` forces it, the reference).
 The error is ≤ 5 µs of hold time per step, random in sign, i.e. ≤ 5e-5 of the transient per
 step for the 0.1 s pack time constant, and none at all at equilibrium (which is exact for every
 dt). Dts below the resolution count as one resolution step; ``dt_resolution=0`` keys the
@@ -46,7 +49,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from clutch_ros.model.arraytypes import FloatArray
-from clutch_ros.model.discretisation import _Entry, _Layout
+from clutch_ros.model.discretisation import PackModes, _Entry, _Layout
 from clutch_ros.model.errors import InputError, NonFiniteSample
 from clutch_ros.model.film import film_equilibrium, film_step, thermal_step
 from clutch_ros.model.friction import mu_scalar, sign_scalar
@@ -59,10 +62,13 @@ from clutch_ros.model.statespace import (
 )
 
 if TYPE_CHECKING:
-    from clutch_ros.model.params import ClutchParams
+    from clutch_ros.model.params import ClutchParams, PackParams
     from clutch_ros.model.spline import SplineLaw, WarmState
 
-__all__ = ["PackModel", "PackSample", "PackState"]
+__all__ = ["PackModel", "PackSample", "PackState", "TRANSITIONS"]
+
+#: ways to compute e^{A dt} of a new dt (:class:`PackModel` ``transition``)
+TRANSITIONS = ("auto", "expm")
 
 
 @dataclass(slots=True)
@@ -131,6 +137,10 @@ class PackModel:
         params: :class:`~clutch_ros.model.params.ClutchParams`.
         dt_resolution: quantisation of dt for the discretisation cache [s] (0 = exact dt).
         cache_size: number of dts kept.
+        transition: how a new dt's ``e^{A dt}`` is computed: ``"auto"`` (default) in closed
+            form (:class:`~clutch_ros.model.discretisation.PackModes`) where the law's states
+            are decoupled from the pack (``none``, ``coulomb``, ``ff_t``), else by ``expm``;
+            ``"expm"``: always by ``expm`` (the reference).
 
     """
 
@@ -140,11 +150,16 @@ class PackModel:
     _last_entry: _Entry | None
 
     def __init__(self, params: ClutchParams, *, dt_resolution: float = 1e-5,
-                 cache_size: int = 256) -> None:
+                 cache_size: int = 256, transition: str = "auto") -> None:
         if not (dt_resolution >= 0.0 and math.isfinite(dt_resolution)):
             raise InputError(f"dt_resolution must be finite and >= 0, got {dt_resolution!r}")
+        if transition not in TRANSITIONS:
+            raise InputError(f"transition must be one of {', '.join(TRANSITIONS)}, got "
+                             f"{transition!r}")
         self.dt_resolution = float(dt_resolution)
         self.cache_size = max(1, int(cache_size))
+        self.transition = transition
+        self.misses = 0  # discretisations computed (cache misses), for diagnostics
         self._configure(params)
         self.reset()
 
@@ -159,7 +174,7 @@ class PackModel:
             old is not None and old.pack == params.pack and old.spline == params.spline) \
             else None
         self.params = params
-        pk, fr = params.pack, params.friction
+        pk = params.pack
         n = pk.lamella_count
         law: SplineLaw = make_spline_law(params)
         ns = law.n_states
@@ -178,6 +193,9 @@ class PackModel:
         x_full[:n_pack, 0] = x_ss[:, 0]
         x_full[:n_pack, 2:] = x_ss[:, 1:]
         law.fill(a_full, b_full, x_full, n_pack)
+        self._modes = _decoupled_modes(self.transition, a_full, n_pack, pk)
+        self._law_diagonal = np.arange(n_pack, nx)
+        self._eye = np.eye(nx)
         self.law = law
         self.layout = layout
         self.a_matrix, self.b_matrix, self.static_gain = a_full, b_full, x_full
@@ -193,14 +211,20 @@ class PackModel:
         if kept is not None:
             self._cache, self._last_key, self._last_entry = kept
         self._area = pk.piston_area
+        self._correction_weights = np.arange(1, n + 1, dtype=float)  # m of F_fm (N,)
+        self._correction_div = n * pk.piston_area
         self._c2k = 2.0 * pk.effective_radius * pk.lamella_stiffness
         self._c2n = 2.0 * pk.effective_radius * n
         self._k_na = pk.lamella_stiffness / (n * pk.piston_area)  # p_eq = k z_N / (N A)
+        self._set_friction(params)
+        self._film = 1.0
+        self._temp = params.friction.temperature_ref
+
+    def _set_friction(self, params: ClutchParams) -> None:
+        fr = params.friction
         self._fr = fr
         self._film_on = fr.film_depth > 0.0
         self._sign_speed = fr.sign_speed
-        self._film = 1.0
-        self._temp = fr.temperature_ref
 
     def discretisation(self, dt: float) -> _Entry:
         """Return the cached discretisation for ``dt`` [s] (``M = [Φ | Γ]``, see statespace)."""
@@ -214,8 +238,9 @@ class PackModel:
             self._cache.move_to_end(key)  # least recently used is evicted first
         else:
             dtq = key * res if res > 0.0 else dt
-            phi, _ = zoh_discretize(self.a_matrix, self.b_matrix, dtq)
-            gamma = (np.eye(phi.shape[0]) - phi) @ self.static_gain
+            self.misses += 1
+            phi = self._transition(dtq)
+            gamma = (self._eye - phi) @ self.static_gain
             entry = _Entry(dtq, self.layout, np.hstack([phi, gamma]), self._spring)
             self.law.prepare(entry)
             self._cache[key] = entry
@@ -223,6 +248,23 @@ class PackModel:
                 self._cache.popitem(last=False)
         self._last_key, self._last_entry = key, entry
         return entry
+
+    @property
+    def transition_method(self) -> str:
+        """How a new dt's ``e^{A dt}`` is computed here: ``"closed form"`` or ``"expm"``."""
+        return "expm" if self._modes is None else "closed form"
+
+    def _transition(self, dt: float) -> FloatArray:
+        """``e^{A dt}`` of the pack and law system (closed form where decoupled, else expm)."""
+        modes = self._modes
+        if modes is None:
+            return zoh_discretize(self.a_matrix, self.b_matrix, dt)[0]
+        n_pack = 2 * modes.lamella_count
+        phi = np.zeros_like(self.a_matrix)
+        phi[:n_pack, :n_pack] = modes.transition(dt)
+        law = self._law_diagonal  # the law's block is diagonal here
+        phi[law, law] = np.exp(self.a_matrix[law, law] * dt)
+        return phi
 
     # -- state ---------------------------------------------------------------------
     def reset(self, actuating_pressure: float = 0.0, lamella_temperature: float | None = None,
@@ -273,6 +315,7 @@ class PackModel:
         """Return an independent model in the same state (shares the dt cache)."""
         other = PackModel.__new__(PackModel)
         other.dt_resolution, other.cache_size = self.dt_resolution, self.cache_size
+        other.transition, other.misses = self.transition, 0
         other._configure(self.params)
         other._cache = self._cache
         other.restore(self.state)
@@ -284,8 +327,14 @@ class PackModel:
         Pack positions/velocities, film and thermal state are kept; the law's states are kept
         when the law is the same (ff_t's filter state y = κ·lowpass(T) is rescaled by
         κ_new/κ_old, as if the new κ had always applied), else the new law starts at rest (no
-        force). A different N resets to equilibrium at the current actuating force.
+        force). A different N resets to equilibrium at the current actuating force. With the
+        same pack and law parameters (the adaptation's friction scale, about once a second
+        live) nothing is rebuilt: the same state, the same bits, in a few µs.
         """
+        if params.pack == self.params.pack and params.spline == self.params.spline:
+            self.params = self.law.params = params
+            self._set_friction(params)
+            return
         old_state, old_law = self._work.copy(), self.law
         old_layout = self.layout
         film, temp = self._film, self._temp
@@ -398,7 +447,7 @@ class PackModel:
         """F_fn of the last step, rear → front [N] (see the law for held or end value)."""
         return self.law.current_forces()
 
-    def spline_correction(self) -> float:
+    def spline_correction(self, forces: FloatArray | None = None) -> float:
         """Return the pressure equivalent of the current spline-friction loss [Pa].
 
         Quasi-statically a force F_fm on lamella m unloads the m springs behind it, so the
@@ -406,11 +455,32 @@ class PackModel:
         (and so the same Eq. 27 torque) needs ``Σ_m m F_fm / (N A)`` more pressure. Positive
         while compressing against spline friction, negative while it holds the pack
         compressed (rebound). The controller adds it to the steady-state inverse.
+        ``forces``: the current spline forces if the caller has them (a
+        :class:`PackSample`'s ``spline_force``), else they are asked of the law.
         """
-        forces = self.law.current_forces()
-        n = self.layout.lamella_count
-        weights = np.arange(1, n + 1, dtype=float)
-        return float(weights.dot(forces)) / (n * self._area)
+        if forces is None:
+            forces = self.law.current_forces()
+        return float(self._correction_weights.dot(forces)) / self._correction_div
+
+
+def _decoupled_modes(transition: str, a_full: FloatArray, n_pack: int,
+                     pack: PackParams) -> PackModes | None:
+    """Return the closed-form modes if ``transition`` allows and the law's states decouple.
+
+    Decoupled: no law state enters the pack's rows, no pack state the law's rows, and the
+    law's block is diagonal (each state a first-order lag of held inputs), so
+    ``e^{A dt} = diag(e^{A_pack dt}, e^{a_ii dt})``. ``ff_t_printed`` (its filter state acts
+    on the pack inside the step) and ``ff_v``/``ff_v_printed`` (driven by the lamella speeds)
+    are not, and keep ``expm``.
+    """
+    if transition != "auto":
+        return None
+    law_block = a_full[n_pack:, n_pack:]
+    if (a_full[:n_pack, n_pack:].any() or a_full[n_pack:, :n_pack].any()
+            or np.count_nonzero(law_block - np.diag(np.diagonal(law_block)))):
+        return None
+    return PackModes(pack.lamella_count, pack.lamella_mass, pack.lamella_stiffness,
+                     pack.lamella_damping)
 
 
 def _check_finite(pressure: float, temperature: float, slip_speed: float) -> None:

@@ -209,32 +209,43 @@ class PassiveLaw(SplineLaw):
         raise NotImplementedError
 
     def apply(self, entry: _Entry, torque: float, mu_load: float) -> None:
-        """Project the printed force onto the passive set (module docstring); write F_f."""
+        """Project the printed force onto the passive set (module docstring); write F_f.
+
+        Per step, N = 8: the box's bounds, its sides and the check of the warm set run on
+        Python floats (a dozen numpy calls on 8 elements cost more than the arithmetic); the
+        products stay numpy's. The same float operations as on arrays, so the same bits.
+        """
         scale = self.coef * mu_load
-        des = self.desired(torque)
-        if scale <= 0.0 or not des.any():
+        des = self.desired(torque).tolist()
+        if scale <= 0.0 or not any(des):
             self._f.fill(0.0)
             return
         head = self._head
-        normal = entry.passive_normal.dot(head)
-        np.maximum(normal, 0.0, out=normal)
-        bound = normal[:-1] + normal[1:]
-        bound *= scale
-        clipped = np.clip(des, -bound, bound)
-        hi = np.maximum(clipped, 0.0)
-        lo = np.minimum(clipped, 0.0)
+        normal = entry.passive_normal.dot(head).tolist()
+        hi_l, lo_l = [], []
+        below = normal[0] if normal[0] > 0.0 else 0.0
+        for i, d in enumerate(des):  # bound b = a (S_n + S_n+1), S >= 0; [lo, hi] of clip(d, ±b)
+            above = normal[i + 1] if normal[i + 1] > 0.0 else 0.0
+            b = (below + above) * scale
+            below = above
+            c = min(max(d, -b), b)
+            hi_l.append(c if c > 0.0 else 0.0)
+            lo_l.append(c if c < 0.0 else 0.0)
         f_stick = entry.passive_stick.dot(head)
         g = entry.passive_g
         stuck, sigma = self._stuck, self._sigma
         if not stuck.any():  # fast path: the previous set had every lamella sliding
-            f = np.where(sigma > 0.0, hi, lo)
-            dz = g.dot(f - f_stick)
-            tol_z = -1e-12 * (float(np.abs(dz).max()) + 1e-15)
-            if ((sigma * dz >= tol_z) | (hi <= lo)).all():
+            sides = sigma.tolist()
+            f_l = [h if s > 0.0 else lo for h, lo, s in zip(hi_l, lo_l, sides)]
+            f = np.array(f_l)
+            dz = g.dot(f - f_stick).tolist()
+            tol_z = -1e-12 * (max(map(abs, dz)) + 1e-15)
+            if all(s * z >= tol_z or h <= lo for s, z, h, lo in zip(sides, dz, hi_l, lo_l)):
                 self.iterations = 0
                 self._f[:] = f
                 return
-        else:
+        hi, lo = np.array(hi_l), np.array(lo_l)
+        if stuck.any():
             f = box_forces(g, f_stick, lo, hi, stuck, sigma, entry.passive_solves)
             bad_stuck, bad_slide = _violations(g, f_stick, f, lo, hi, stuck, sigma)
             if not (bad_stuck.any() or bad_slide.any()):

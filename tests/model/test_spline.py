@@ -1,6 +1,7 @@
 """Spline-friction laws: ff_t (Eq. 29) and ff_v (Eq. 30) closed forms, coulomb stiction."""
 
 import math
+import types
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from clutch_ros.model import (
 )
 from clutch_ros.model.metrics import hysteresis_width
 from clutch_ros.model.spline import TorqueFilterLaw
+from clutch_ros.model.spline_passive import _violations, box_forces, solve_box
 
 W10 = 10 * 2 * math.pi / 60  # [rad/s]
 
@@ -211,3 +213,57 @@ def test_hysteresis_24s_triangle_zero_for_thesis_laws_clear_for_coulomb(flexifor
     seq = ramp_sequence(24.0, 10.0, 2e-3)
     res = simulate(truth, seq.t, seq.actuating_pressure, seq.slip_speed, 35.0)
     assert hysteresis_width(seq.actuating_pressure, res.torque, 20e5) > widths["ff_t"]
+
+
+def _array_apply(law, entry, torque, mu_load):
+    """PassiveLaw.apply written on numpy arrays (its form before the float-by-float path)."""
+    scale = law.coef * mu_load
+    des = law.desired(torque)
+    if scale <= 0.0 or not des.any():
+        law._f.fill(0.0)
+        return
+    normal = np.maximum(entry.passive_normal.dot(law._head), 0.0)
+    bound = (normal[:-1] + normal[1:]) * scale
+    clipped = np.clip(des, -bound, bound)
+    hi, lo = np.maximum(clipped, 0.0), np.minimum(clipped, 0.0)
+    f_stick = entry.passive_stick.dot(law._head)
+    g, stuck, sigma = entry.passive_g, law._stuck, law._sigma
+    if not stuck.any():
+        f = np.where(sigma > 0.0, hi, lo)
+        dz = g.dot(f - f_stick)
+        if ((sigma * dz >= -1e-12 * (np.abs(dz).max() + 1e-15)) | (hi <= lo)).all():
+            law._f[:] = f
+            return
+    else:
+        f = box_forces(g, f_stick, lo, hi, stuck, sigma, entry.passive_solves)
+        if not any(v.any() for v in _violations(g, f_stick, f, lo, hi, stuck, sigma)):
+            law._f[:] = f
+            return
+    f, law._stuck, law._sigma, _ = solve_box(g, entry.passive_h, f_stick, lo, hi, stuck,
+                                             sigma, entry.passive_solves)
+    law._f[:] = f
+
+
+@pytest.mark.parametrize("law", ["ff_t", "ff_v"])
+@pytest.mark.parametrize("friction", [0.05, 0.5])
+def test_passive_apply_equals_its_array_form_bit_for_bit(flexiforce, law, friction):
+    # the per-step path works on Python floats with the same operations: the same bits, on
+    # a jittery 1 kHz stream that slides and (with 10x the spline friction) sticks
+    params = flexiforce.with_law(law).updated({"spline.friction_coefficient": friction})
+    fast, ref = PackModel(params), PackModel(params)
+    ref.law.apply = types.MethodType(_array_apply, ref.law)
+    rng = np.random.default_rng(3)
+    dts = 1e-3 + np.abs(rng.normal(0.0, 2e-5, 4000))
+    t = np.cumsum(dts)
+    press = np.clip(30e5 * np.sin(t * 1.3) + 5e5 * np.sin(t * 9.0), 0.0, None)
+    slip = W10 * np.sign(np.sin(t * 0.7) + 0.2)
+    out = {}
+    for model in (fast, ref):
+        model.reset(0.0, 40.0, slip[0])
+        rows = [model.step(float(d), float(p), float(w), 40.0) for d, p, w in zip(dts, press,
+                                                                                   slip)]
+        out[id(model)] = (np.array([r.torque for r in rows]),
+                          np.array([r.spline_force for r in rows]))
+    for got, want in zip(out[id(fast)], out[id(ref)]):
+        np.testing.assert_array_equal(got, want)
+    assert np.abs(out[id(ref)][1]).max() > 0.0  # the law acted

@@ -1,5 +1,7 @@
 """State space of Eqs. 11-26 and its exact ZOH discretisation."""
 
+from decimal import Decimal, localcontext
+
 import numpy as np
 import pytest
 import scipy.linalg
@@ -7,6 +9,7 @@ from numpy.testing import assert_allclose
 from scipy.signal import cont2discrete
 
 from clutch_ros.model import PackModel
+from clutch_ros.model.discretisation import PackModes
 from clutch_ros.model.statespace import (
     build_state_space,
     pack_discretize,
@@ -97,13 +100,19 @@ def test_pack_discretisation_matches_cont2discrete(flexiforce, dt):
     for mine, ref in ((phi, phi_ref), (gamma, gamma_ref)):
         scale = np.abs(ref).max(axis=0)
         assert_allclose(mine / scale, ref / scale, rtol=0, atol=1e-6)
-    # the same matrices sit in PackModel's cache (law none: M = [Phi | Gamma(F, T, F_f)])
-    entry = PackModel(flexiforce.with_law("none")).discretisation(dt)
-    phi_q, gamma_q = pack_discretize(a, b, static_gain(8, pk.lamella_stiffness), entry.dt)
+    # the same matrices sit in PackModel's cache with transition="expm" (law none:
+    # M = [Phi | Gamma(F, T, F_f)]); its default, the closed form, within the expm's error
+    phi_q, gamma_q = pack_discretize(a, b, static_gain(8, pk.lamella_stiffness),
+                                     PackModel(flexiforce).discretisation(dt).dt)
     scale = np.abs(phi_q).max(axis=0)
-    assert_allclose(entry.M[:, :n] / scale, phi_q / scale, rtol=0, atol=1e-12)  # rounding
-    assert_allclose(entry.M[:, n], gamma_q[:, 0], rtol=1e-12, atol=0)
-    assert_allclose(entry.M[:, n + 2:], gamma_q[:, 1:], rtol=1e-12, atol=0)
+    for transition, tol in (("expm", 1e-12), ("auto", 2e-7)):  # rounding; expm's error
+        model = PackModel(flexiforce.with_law("none"), transition=transition)
+        entry = model.discretisation(dt)
+        assert_allclose(entry.M[:, :n] / scale, phi_q / scale, rtol=0, atol=tol)
+        assert_allclose(entry.M[:, n], gamma_q[:, 0], rtol=0,
+                        atol=tol * np.abs(gamma_q[:, 0]).max())
+        assert_allclose(entry.M[:, n + 2:], gamma_q[:, 1:], rtol=0,
+                        atol=tol * np.abs(gamma_q[:, 1:]).max())
 
 
 @pytest.mark.parametrize("dt", [1e-5, 1e-3, 0.05, 1.0])
@@ -148,3 +157,73 @@ def test_exact_step_response_against_matrix_exponential(flexiforce):
             # both are expm of the stiff matrix (|A t| up to 6e8 for the reference): agree to
             # ~3e-8 of the 0.3 mm compression; 1e-7 leaves margin, far below any physics
             assert_allclose(x[0::2], ref[0::2], rtol=0, atol=1e-7 * 3e-4)
+
+
+# -- the closed-form transition (model/discretisation.py PackModes) -------------------------
+
+
+@pytest.mark.parametrize("dt", [1e-5, 1e-3, 1.05e-3, 0.05, 1.0])
+def test_closed_form_transition_equals_the_modal_reference(flexiforce, dt):
+    pk = flexiforce.pack
+    phi = PackModes(8, pk.lamella_mass, pk.lamella_stiffness, pk.lamella_damping).transition(dt)
+    exact = modal_phi(8, pk.lamella_mass, pk.lamella_stiffness, pk.lamella_damping, dt)
+    scale = np.abs(exact).max(axis=0)
+    # two codings of the same formulas (Sylvester, two real roots): rounding only
+    assert_allclose(phi / scale, exact / scale, rtol=0, atol=1e-12)
+    a, b = build_state_space(8, pk.lamella_mass, pk.lamella_stiffness, pk.lamella_damping)
+    expm_phi, _ = zoh_discretize(a, b, dt)
+    # the balanced expm it replaces: within the expm's own error (test above, observed
+    # <= 5e-8 of each column's scale)
+    assert_allclose(expm_phi / scale, exact / scale, rtol=0, atol=2e-7)
+
+
+@pytest.mark.parametrize("damping", [0.0, 0.4, 2.0 * (1 - 1e-9), 2.0, 2.0 * (1 + 1e-9), 30.0])
+@pytest.mark.parametrize("n", [1, 3, 8])
+def test_closed_form_transition_equals_expm_on_non_stiff_packs(n, damping):
+    # undamped, underdamped, (nearly) critically damped and overdamped modes (for n = 1,
+    # damping 2 is the double root); expm is accurate to ~1e-15 on these small matrices
+    a, b = build_state_space(n, 1.0, 1.0, damping)
+    modes = PackModes(n, 1.0, 1.0, damping)
+    for dt in (1e-4, 0.3, 2.0, 25.0):
+        expected = scipy.linalg.expm(a * dt)
+        assert_allclose(modes.transition(dt), expected, rtol=1e-11, atol=1e-13)
+
+
+def test_closed_form_transition_composes_and_keeps_the_equilibrium(flexiforce):
+    pk = flexiforce.pack
+    modes = PackModes(8, pk.lamella_mass, pk.lamella_stiffness, pk.lamella_damping)
+    # semigroup: e^{A s} e^{A t} = e^{A (s + t)} (column scales as above)
+    both = modes.transition(3e-4) @ modes.transition(7e-4)
+    once = modes.transition(1e-3)
+    scale = np.abs(once).max(axis=0)
+    assert_allclose(both / scale, once / scale, rtol=0, atol=1e-12)
+    # with Γ = (I − Φ) X_ss the equilibrium stays a fixed point (PackModel's use)
+    gain = static_gain(8, pk.lamella_stiffness)
+    u = np.zeros(9)
+    u[0], u[3] = 15e3, 200.0
+    x_eq = gain @ u
+    for dt in (1e-6, 1e-3, 0.5, 1e4):
+        phi = modes.transition(dt)
+        assert np.max(np.abs(np.linalg.eigvals(phi))) < 1.0
+        assert_allclose(phi @ x_eq + (np.eye(16) - phi) @ gain @ u, x_eq, rtol=0,
+                        atol=1e-14 * np.abs(x_eq).max())
+
+
+@pytest.mark.parametrize("dt", [1e-5, 1e-3, 1.0])
+def test_closed_form_mode_blocks_against_60_digit_arithmetic(flexiforce, dt):
+    # each mode's 2 x 2 exponential, Sylvester's formula in 60-digit decimal arithmetic from
+    # the same roots' coefficients a, b: the float64 formulas lose no digits to cancellation
+    pk = flexiforce.pack
+    modes = PackModes(8, pk.lamella_mass, pk.lamella_stiffness, pk.lamella_damping)
+    got = modes.block_entries(dt)
+    for i in range(8):
+        with localcontext() as ctx:
+            ctx.prec = 60
+            a, b = Decimal(modes._a[i]), Decimal(modes._b[i])
+            s1 = (-b - (b * b - 4 * a).sqrt()) / 2
+            s2 = a / s1
+            e1, e2, d = (s1 * Decimal(dt)).exp(), (s2 * Decimal(dt)).exp(), s1 - s2
+            exact = [(s1 * e2 - s2 * e1) / d, (e1 - e2) / d, -a * (e1 - e2) / d,
+                     (s1 * e1 - s2 * e2) / d]
+        for entry, want in zip(got, exact):
+            assert_allclose(entry[i], float(want), rtol=4e-15, atol=0)
