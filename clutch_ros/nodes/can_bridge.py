@@ -36,7 +36,10 @@ Send: ``pressure_command`` goes through :class:`clutch_ros.canbus.PumpCommandGat
 command; stale, future, out-of-order, unstamped commands, commands from a node other than
 ``pump.command_source`` and commands while inactive are refused and counted). The
 PumpRequest (rolling counter + CRC-8) goes out every ``pump.period`` plus at most one
-immediate frame per period; what was applied and why is published on ``pump_request``.
+immediate frame per period; what was applied and why is published on ``pump_request``
+(:mod:`clutch_ros.nodes.can_bridge_send`). The cycle (``pump.period``, with the watchdog) and
+the ``bridge.rate`` flush run on a thread of their own (:mod:`clutch_ros.nodes.cycle`:
+an executor wake-up per call cost more CPU than the work; ROS timers with ``use_sim_time``).
 SIGINT/SIGTERM while active send a last 0 bar PumpRequest; a killed bridge sends nothing, and
 the pump ECU goes to 0 bar on its own request timeout (100 ms, ``params/rig.dbc``).
 
@@ -70,7 +73,6 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 
 from clutch_ros.canbus import (
     BusConfig,
-    CanError,
     LogSource,
     PumpCommandGate,
     ReconnectingBus,
@@ -91,21 +93,21 @@ from clutch_ros.nodes.can_bridge_params import (
     gate_config,
     signal_specs,
 )
+from clutch_ros.nodes.can_bridge_send import PumpSender
 from clutch_ros.nodes.can_bridge_state import BridgeState
 from clutch_ros.nodes.can_diagnostics import hardware_id, node_status
 from clutch_ros.nodes.command_sources import CommandSources
 from clutch_ros.nodes.convert import can_frame_to_ros, rig_state_to_ros
+from clutch_ros.nodes.cycle import Cycle
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.lockstep import time_of_frame
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM
 from clutch_ros.nodes.qos import publisher_qos, sensor_qos
 from clutch_ros.nodes.renamed_params import declare_with_renames
 from clutch_ros.nodes.runner import run_node
-from clutch_ros.nodes.stamps import stamp_to_sec
 
 NAME = "can_bridge"
 IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning
-SEND_TIMEOUT = 0.005  # [s] a pump request never blocks the executor longer
 FLUSH_PERIOD = 0.05  # [s] with publish_on: a frame held back by bridge.rate goes out then
 #: [s] with publish_on, the receive thread leaves the frames queued in the socket until this
 #: long before the pacer can publish again (each wake-up cost more CPU than its frames)
@@ -122,14 +124,16 @@ class CanBridgeNode(LifecycleNode):
         reason = check_change(cfg, None)  # the start values, as a later change would be
         if reason is not None:
             raise ClutchError(reason)
-        self._send_warn, self._lock, self._failure = LogThrottle(5.0), threading.Lock(), None
+        self._lock, self._failure = threading.Lock(), None
+        self._cycle_warn, self._cycle = LogThrottle(5.0), None  # (Cycle while active)
         self._sim_time = False  # use_sim_time, read at configure
         self._time_floor = 0.0  # [s] sim time: the newest command stamp (see _node_time)
-        self._command = self._rig_pub = self._cmd_pub = self._raw_pub = self._rx = None
+        self._rig_pub = self._raw_pub = self._rx = None
         self._rx_stop = threading.Event()
         self._sub = self._pump_timer = self._flush_timer = None
         #: the bridge's components, counters and lifecycle state, read by its diagnostics
         self.state = BridgeState(CommandSources(self, cfg["pump.command_source"]))
+        self._pump = PumpSender(self, self.state, self._saw_stamp)  # the send side
         self._diag = Diagnostics(self, self._diagnose, hardware_id=(
             cfg[HARDWARE_ID_PARAM.name] or hardware_id(cfg)))
         self.add_on_set_parameters_callback(self._check_params)
@@ -152,7 +156,7 @@ class CanBridgeNode(LifecycleNode):
                                              == "socketcan")
             # use_sim_time (a lock-step rig's /clock): the node clock is the time base of
             # the frames, the gate's watchdog and rate limit, and the pacer, not the PC's
-            self._sim_time = bool(self.get_parameter("use_sim_time").value)
+            self._sim_time = self._pump.sim_time = bool(self.get_parameter("use_sim_time").value)
             st.gate = PumpCommandGate(self._node_time if self._sim_time else time.monotonic,
                                       gate_config(cfg), st.assembler.map.pump,
                                       stamp_clock=self._node_time)
@@ -170,7 +174,7 @@ class CanBridgeNode(LifecycleNode):
                 self._rx.start()
                 self.get_logger().info(f"CAN {config.describe()} open; decoding with {db.path}")
                 self._sub = self.create_subscription(PressureCommand, PRESSURE_COMMAND.name,
-                                                     self._on_command, sensor_qos())
+                                                     self._on_command, sensor_qos(), raw=True)
                 st.sources.topic = self._sub.topic_name
         except (ClutchError, ValueError) as err:
             self._failure = err
@@ -180,7 +184,7 @@ class CanBridgeNode(LifecycleNode):
             return FAIL
         self._rig_pub = self.create_lifecycle_publisher(
             RigState, RIG_STATE.name, publisher_qos(RIG_STATE.name))
-        self._cmd_pub = self.create_lifecycle_publisher(
+        self._pump.publisher = self.create_lifecycle_publisher(
             PressureCommand, PUMP_REQUEST.name, publisher_qos(PUMP_REQUEST.name))
         self._raw_pub = (self.create_lifecycle_publisher(
             CanFrame, CAN_FRAMES.name, publisher_qos(CAN_FRAMES.name))
@@ -197,14 +201,20 @@ class CanBridgeNode(LifecycleNode):
             st.log_thread = threading.Thread(target=self._replay, name="can_log", daemon=True)
             st.log_thread.start()
         else:
-            # configured: these stay the same objects until cleanup (timers end at deactivate)
-            gate, pacer = st.gate, st.pacer
-            assert gate is not None and pacer is not None
-            self._pump_timer = self.create_timer(self._cfg["pump.period"],
-                                                 lambda: self._send(gate.tick()))
-            self._flush_timer = self.create_timer(self._flush_period(), lambda: (
-                self._publish_latest(pacer.flush)))
+            # configured: these stay the same objects until cleanup (the cycle and the
+            # timers end at deactivate)
+            pacer = st.pacer
+            assert st.gate is not None and pacer is not None
+            jobs = {"pump": (self._cfg["pump.period"], self._pump.tick),
+                    "flush": (self._flush_period(), lambda: self._publish_latest(pacer.flush))}
+            if self._sim_time:  # on the node's (simulated) clock: ROS timers
+                self._pump_timer, self._flush_timer = (
+                    self.create_timer(period, job) for period, job in jobs.values())
+            else:
+                self._cycle = Cycle("can_cycle", jobs, self._on_cycle_error)
         st.active, st.lifecycle = True, "active"
+        if self._cycle is not None:
+            self._cycle.start()
         return result
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
@@ -216,12 +226,12 @@ class CanBridgeNode(LifecycleNode):
     def on_cleanup(self, state) -> TransitionCallbackReturn:
         """Close the bus, remove the topics and clear the state."""
         self._close_bus()
-        for pub in (self._rig_pub, self._cmd_pub, self._raw_pub):
+        for pub in (self._rig_pub, self._pump.publisher, self._raw_pub):
             if pub is not None:
                 self.destroy_lifecycle_publisher(pub)
         if self._sub is not None:
             self.destroy_subscription(self._sub)
-        self._sub = self._rig_pub = self._cmd_pub = self._raw_pub = None
+        self._sub = self._rig_pub = self._pump.publisher = self._raw_pub = None
         self.state.clear()
         self.state.lifecycle = "unconfigured"
         return super().on_cleanup(state)
@@ -239,6 +249,9 @@ class CanBridgeNode(LifecycleNode):
         # "active" check has ended when this returns, so none follows the transition
         with self._lock:
             was_active, st.active = st.active, False
+        if self._cycle is not None:  # ended: no cycle frame after the last one below
+            self._cycle.stop()
+            self._cycle = None
         for timer in (self._pump_timer, self._flush_timer):
             if timer is not None:
                 timer.cancel()
@@ -248,7 +261,7 @@ class CanBridgeNode(LifecycleNode):
         if st.log_thread is not None:
             st.log_thread.join(timeout=2.0)
         if was_active and st.bus is not None and st.gate is not None:  # (gate: with the bus)
-            self._send(st.gate.zero(why), timeout=0.05)
+            self._pump.zero(why)
 
     def _close_bus(self) -> None:
         st = self.state
@@ -294,21 +307,27 @@ class CanBridgeNode(LifecycleNode):
         names = {p.name for p in params if p.name in LIVE}
         self._cfg.update({p.name: p.value for p in params if p.name in self._cfg})
         cfg, st = self._cfg, self.state
-        if names & set(GATE_PARAMS) and st.gate is not None:
-            st.gate.reconfigure(gate_config(cfg))
+        if names & set(GATE_PARAMS):
+            self._pump.reconfigure(gate_config(cfg))
         if "pump.command_source" in names:
             st.sources.wanted = cfg["pump.command_source"].strip()
-        if "pump.period" in names and self._pump_timer is not None:
-            self._pump_timer.timer_period_ns = int(cfg["pump.period"] * 1e9)
+        if "pump.period" in names:
+            self._set_period("pump", self._pump_timer, cfg["pump.period"])
         if names & {"bridge.rate", "bridge.publish_on"} and st.pacer is not None:
             with self._lock:
                 st.pacer.rate = cfg["bridge.rate"]
                 st.pacer.trigger = self._trigger(cfg["bridge.publish_on"])
-            if self._flush_timer is not None:
-                self._flush_timer.timer_period_ns = int(self._flush_period() * 1e9)
+            self._set_period("flush", self._flush_timer, self._flush_period())
         if names:
             self.get_logger().info("applied " + ", ".join(f"{n}={cfg[n]!r}"
                                                           for n in sorted(names)))
+
+    def _set_period(self, job: str, timer, period: float) -> None:
+        """Apply a new ``period`` [s] to a cycle job (or its timer, on simulated time)."""
+        if self._cycle is not None:
+            self._cycle.set_period(job, period)
+        elif timer is not None:
+            timer.timer_period_ns = int(period * 1e9)
 
     def _trigger(self, name: str) -> int | None:
         """Frame key of ``bridge.publish_on`` (a DBC message or a signal map key)."""
@@ -459,57 +478,17 @@ class CanBridgeNode(LifecycleNode):
         st.published += 1
         return True
 
-    # -- send -----------------------------------------------------------------------------
+    # -- send (can_bridge_send) ----------------------------------------------------------
     def _on_command(self, msg, info) -> None:
-        st = self.state
-        gate = st.gate
-        assert gate is not None  # the subscription is made by configure, after the gate
-        st.sources.count_sequence(info)
-        kind, reason = ("inactive", "command refused: can_bridge is not active") \
-            if not st.active else ("source", st.sources.check(info))
-        if reason is not None:
-            gate.refuse(kind, reason)
-            return
-        stamp = stamp_to_sec(msg.header.stamp)
+        self._pump.on_command(msg, info)
+
+    def _saw_stamp(self, stamp: float) -> None:
         if self._sim_time and stamp > self._time_floor:  # (see _node_time)
             self._time_floor = stamp
-        admitted = gate.commands
-        out = gate.submit(msg.pressure, stamp if stamp > 0.0 else None)
-        if out is None and self._sim_time and gate.commands != admitted:
-            out = gate.tick()  # simulated time: every admitted command answered by a frame
-        self._send(out, msg if gate.commands != admitted else None)
 
-    def _send(self, out, command=None, timeout: float = SEND_TIMEOUT) -> None:
-        """Send the gate's frame (if any); report it on pump_request when new or changed.
-
-        ``command``: the PressureCommand just admitted (reported with the next frame).
-        """
-        if command is not None:
-            self._command = command
-        if out is None:
-            return
-        st = self.state
-        assert st.bus is not None and self._cmd_pub is not None  # a frame: the bus is open
-        try:
-            st.bus.send(out.frame, timeout=timeout)
-        except CanError as err:  # link down: the pump's own timeout takes it to 0 bar
-            if self._send_warn.ready():
-                self.get_logger().warning(f"pump request not sent: {err}")
-        command, self._command = self._command, None
-        if command is None and (out.pressure, out.reason) == st.last_report:
-            return
-        st.last_report = (out.pressure, out.reason)
-        applied = PressureCommand(pressure=float(out.pressure), limited=bool(out.limited),
-                                  reason=out.reason)
-        applied.header.stamp = (command.header.stamp if command is not None and self._sim_time
-                                else self.get_clock().now().to_msg())  # (nodes/lockstep)
-        applied.requested_torque = command.requested_torque if command else 0.0
-        applied.predicted_torque = command.predicted_torque if command else 0.0
-        try:
-            self._cmd_pub.publish(applied)
-        except Exception:  # noqa: BLE001 - after SIGINT the context is gone; the frame went out
-            if self.context.ok():
-                raise
+    def _on_cycle_error(self, job: str, err: BaseException) -> None:
+        if self._cycle_warn.ready():
+            self.get_logger().error(f"{job} cycle: {type(err).__name__}: {err}")
 
     # -- health ---------------------------------------------------------------------------
     def _diagnose(self):

@@ -45,6 +45,18 @@ step before anything is learned approaches the request from below and the trim c
 gap (``caution`` in ``/diagnostics``). The trim's share of every command is
 ``PressureCommand.trim_pressure`` [Pa]; the limits still bound it.
 
+Wake-ups (the CPU of a node at these rates is mostly its executor's wake-ups, ~0.3-0.5 ms
+each): with the ``timer`` trigger the step runs on a thread of its own
+(:class:`~clutch_ros.nodes.cycle.Cycle`; a ROS timer with ``use_sim_time``) and takes its
+three inputs itself (:class:`~clutch_ros.nodes.polled.PolledSubscription`, subscriptions no
+executor waits on: the requests in arrival order, then the newest ``rig_state`` and
+estimate), so the executor wakes only for parameters and diagnostics, not ~400 times a
+second. The step sees every estimate that arrived before it (it used to see those whose
+callback the executor had run before the timer). Arrival times are the middleware's
+reception times (ROS time without ``use_sim_time``; with it, the step's time). With the
+``estimate`` trigger requests and estimates are callbacks as before, and ``rig_state``
+(whose arrival alone counts) is taken at each step and fail-safe check.
+
 Parameters: every ``controller.*`` setting and every model key applies live (the next tick)
 after validation: ranges by ROS, ``min_pressure <= max_pressure`` and the model's rules here;
 a refused change names its reason and changes nothing.
@@ -52,13 +64,21 @@ a refused change names its reason and changes nothing.
 
 from __future__ import annotations
 
+import threading
+
 from clutch_msgs.msg import ClutchEstimate, PressureCommand, RigState, TorqueRequest
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
 from clutch_ros.config.presets import default_preset
 from clutch_ros.errors import ClutchError
-from clutch_ros.interfaces import CLUTCH_ESTIMATE, PRESSURE_COMMAND, RIG_STATE, TORQUE_REQUEST
+from clutch_ros.interfaces import (
+    CLUTCH_ESTIMATE,
+    PRESSURE_COMMAND,
+    RIG_STATE,
+    TORQUE_REQUEST,
+    stamp_to_s,
+)
 from clutch_ros.model.control import TorqueController
 from clutch_ros.nodes.controller_params import (
     PARAMS,
@@ -67,15 +87,21 @@ from clutch_ros.nodes.controller_params import (
     WATCHDOG_FRACTION,
     controller_settings,
 )
+from clutch_ros.nodes.convert import CdrCodec
+from clutch_ros.nodes.cycle import Cycle
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.model_params import apply_model_changes, declare_model_params
 from clutch_ros.nodes.parameters import declare_params
 from clutch_ros.nodes.peers import Input, PeerWatch
+from clutch_ros.nodes.polled import PolledSubscription, Taken
 from clutch_ros.nodes.qos import publisher_qos, sensor_qos, subscriber_qos
 from clutch_ros.nodes.runner import run_node
 from clutch_ros.nodes.stamps import stamp_to_sec
 
 NAME = "controller"
+#: PressureCommand's leaves in CDR order, as the controller's encoder writes them
+_COMMAND_FIELDS = ("header.stamp.sec", "header.stamp.nanosec", "header.frame_id", "pressure",
+                   "requested_torque", "predicted_torque", "limited", "reason", "trim_pressure")
 
 
 class ControllerNode(Node):
@@ -110,18 +136,29 @@ class ControllerNode(Node):
         # 5: only the newest matters); rig_state and clutch_estimate are state of which only
         # the latest sample is used: sensor-data QoS (best effort, depth 5), which matches
         # reliable and best-effort publishers alike.
-        self.create_subscription(TorqueRequest, TORQUE_REQUEST.name, self._on_request,
-                                 subscriber_qos(TORQUE_REQUEST.name, depth=5))
+        # timer trigger: the inputs are taken by the step (module docstring), else callbacks
+        request_qos = subscriber_qos(TORQUE_REQUEST.name, depth=5)
+        self._requests = None if self._on_estimates else PolledSubscription(
+            self, TorqueRequest, TORQUE_REQUEST.name, request_qos, raw=True)
+        if self._on_estimates:
+            self.create_subscription(TorqueRequest, TORQUE_REQUEST.name, self._on_request,
+                                     request_qos)
         # raw: only the arrival of rig_state counts here; not deserialising it saves the
         # message construction (~30 fields) on every sample
-        self.create_subscription(RigState, RIG_STATE.name, self._on_rig, sensor_qos(), raw=True)
+        self._rig = PolledSubscription(self, RigState, RIG_STATE.name, sensor_qos(), raw=True)
         # (estimate trigger: every estimate is answered, so none may be dropped: the topic's
-        # reliable subscriber profile)
-        self.create_subscription(ClutchEstimate, CLUTCH_ESTIMATE.name, self._on_estimate,
-                                 subscriber_qos(CLUTCH_ESTIMATE.name) if self._on_estimates
-                                 else sensor_qos())
-        # one PressureCommand, refilled per tick (publish serialises it before it returns)
-        self._cmd = PressureCommand()
+        # reliable subscriber profile; timer: the newest one at each step)
+        self._estimates = None if self._on_estimates else PolledSubscription(
+            self, ClutchEstimate, CLUTCH_ESTIMATE.name, sensor_qos(), raw=True)
+        if self._on_estimates:
+            self.create_subscription(ClutchEstimate, CLUTCH_ESTIMATE.name, self._on_estimate,
+                                     subscriber_qos(CLUTCH_ESTIMATE.name))
+        # PressureCommand's fields in CDR order (header.stamp.sec, .nanosec, .frame_id,
+        # pressure, requested_torque, predicted_torque, limited, reason, trim_pressure)
+        codec = CdrCodec(PressureCommand)
+        if codec.names != _COMMAND_FIELDS:
+            raise ClutchError(f"PressureCommand fields {codec.names} changed")
+        self._encode_cmd = codec.encode
         # the node clock's C handle: node time (ROS time, /clock with use_sim_time) without a
         # rclpy Time object per call
         self._clock_handle = self.get_clock().handle
@@ -130,17 +167,24 @@ class ControllerNode(Node):
         # arrived first: the same time on every lock-step run, as the bridge's node time)
         self._sim_time = bool(self.get_parameter("use_sim_time").value)
         self._time_floor = 0.0  # [s]
+        # the step (on the cycle thread with the timer trigger on wall-clock time) against
+        # parameter changes and diagnostics (the executor)
+        self._lock, self._cycle, self._cycle_warn = threading.Lock(), None, LogThrottle(5.0)
         self._timer = self._make_timer()
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._diag = Diagnostics(self, self._diagnose)
 
     def _on_set_parameters(self, params):
+        with self._lock:
+            return self._set_parameters(params)
+
+    def _set_parameters(self, params):
         """Validate and apply controller.* and model keys at once (all or nothing).
 
         ROS checks each value against its descriptor's range first; here the set as a whole
         is checked (``min_pressure <= max_pressure``, the model's own rules). Accepted
         settings apply from the next tick: a lower ``max_pressure`` also clamps the pressure
-        held now, so no later command exceeds it; a new ``rate`` restarts the timer.
+        held now, so no later command exceeds it; a new ``rate`` applies from the next step.
         """
         own = {p.name: p.value for p in params if p.name.startswith("controller.")}
         cfg = {**self._cfg, **own}
@@ -165,7 +209,9 @@ class ControllerNode(Node):
                                      settings.max_pressure)
             for what, key in TIMEOUTS.items():
                 self._peers.set_timeout(what, cfg[key])
-            if period_changed or self._on_estimates:  # (the watchdog's follows the timeouts)
+            if self._cycle is not None:
+                self._cycle.set_period("step", settings.period)
+            elif period_changed or self._on_estimates:  # (the watchdog's follows timeouts)
                 self.destroy_timer(self._timer)
                 self._timer = self._make_timer()
             self.get_logger().info("controller settings changed: " + ", ".join(
@@ -173,9 +219,18 @@ class ControllerNode(Node):
         return SetParametersResult(successful=True)
 
     def _make_timer(self):
+        """Return the step's ROS timer, or start the cycle thread (timer trigger, wall clock)."""
         if self._on_estimates:
             return self.create_timer(self._watchdog_period(), self._watchdog)
-        return self.create_timer(self._ctl.settings.period, self._tick)
+        if self._sim_time:  # only a ROS timer follows /clock
+            return self.create_timer(self._ctl.settings.period, self._tick)
+        self._cycle = Cycle("controller_step", {"step": (self._ctl.settings.period, self._tick)},
+                            self._on_cycle_error).start()
+        return None
+
+    def _on_cycle_error(self, job: str, err: BaseException) -> None:
+        if self.context.ok() and self._cycle_warn.ready():  # (a shutdown ends the context)
+            self.get_logger().error(f"{job}: {type(err).__name__}: {err}")
 
     def _watchdog_period(self) -> float:
         return WATCHDOG_FRACTION * min(self._cfg[key] for key in TIMEOUTS.values())
@@ -188,25 +243,62 @@ class ControllerNode(Node):
         if self._sim_time and stamp > self._time_floor:
             self._time_floor = stamp
 
-    def _on_request(self, msg) -> None:
-        stamp = stamp_to_sec(msg.header.stamp)
-        self._saw(stamp)
+    def destroy_node(self) -> None:
+        """Stop the step, free the polled subscriptions, then the node."""
+        if self._cycle is not None:
+            self._cycle.stop()
+        for sub in (self._requests, self._rig, self._estimates):
+            if sub is not None:
+                sub.destroy()
+        super().destroy_node()
+
+    def _arrival(self, item: Taken) -> float:
+        """Node time [s] a polled message arrived: its reception time, the step's at worst."""
         now = self._now()
+        if self._sim_time or item.received is None or abs(now - item.received) > 3600.0:
+            return now  # (simulated time, no reception time, or another clock's)
+        return min(item.received, now)
+
+    def _poll(self) -> None:
+        """Timer trigger: take the inputs that arrived since the last step (module docstring)."""
+        assert self._requests is not None and self._estimates is not None  # (timer trigger)
+        for item in self._requests.take():  # (the fields read from the bytes: view())
+            req = self._requests.view(item.message)
+            self._request(stamp_to_s(req.header_stamp_sec, req.header_stamp_nanosec),
+                          req.torque, item)
+        self._poll_rig()
+        newest = self._estimates.take_newest()
+        if newest is not None:
+            est = self._estimates.view(newest.message)
+            self._estimate_in(est, est.header_stamp_sec * 10**9 + est.header_stamp_nanosec,
+                              newest)
+
+    def _poll_rig(self) -> None:
+        newest = self._rig.take_newest()
+        if newest is not None:
+            self._peers.seen("rig data", self._arrival(newest))
+
+    def _on_request(self, msg) -> None:
+        self._request(stamp_to_sec(msg.header.stamp), msg.torque)
+
+    def _request(self, stamp: float, torque: float, polled: Taken | None = None) -> None:
+        self._saw(stamp)
+        now = self._now() if polled is None else self._arrival(polled)
         self._peers.seen("torque request", now)
-        warning = self._ctl.set_request(now, msg.torque, stamp if stamp > 0.0 else None)
+        warning = self._ctl.set_request(now, torque, stamp if stamp > 0.0 else None)
         if warning:
             self._counts["bad_requests"] += 1
             if self._warn.ready():
                 self.get_logger().warning(warning)
 
-    def _on_rig(self, msg) -> None:
-        self._peers.seen("rig data", self._now())
-
     def _on_estimate(self, msg) -> None:
+        self._estimate_in(msg, msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
+
+    def _estimate_in(self, msg, ns: int, polled: Taken | None = None) -> None:
+        """Take an estimate stamped ``ns`` [ns]: a message, or a polled one's fields (view())."""
         self._estimate = msg
-        ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
         self._saw(ns * 1e-9)
-        now = self._now()
+        now = self._now() if polled is None else self._arrival(polled)
         self._peers.seen("estimate", now)
         if self._on_estimates:
             if ns - self._stepped_ns < 0.5e9 * self._ctl.settings.period:
@@ -223,10 +315,13 @@ class ControllerNode(Node):
                                 round(self._time_floor * 1e9)))
 
     def _stale_reason(self, now: float) -> str:
+        self._poll_rig()
         return self._peers.silent(now)
 
     def _tick(self) -> None:
-        self._step(self._now(), self._clock_handle.get_now().nanoseconds)
+        with self._lock:
+            self._poll()
+            self._step(self._now(), self._clock_handle.get_now().nanoseconds)
 
     def _step(self, now: float, stamp_ns: int) -> None:
         """Compute and publish one command stamped ``stamp_ns`` [ns] at node time ``now``."""
@@ -246,20 +341,22 @@ class ControllerNode(Node):
             out = self._ctl.update(est.lamella_temperature, est.slip_speed_filtered,
                                    est.spline_correction, est.measured_torque,
                                    est.modelled_torque, scale)
-        msg = self._cmd
-        stamp = msg.header.stamp  # as Time.to_msg(): seconds and nanoseconds (node clock or
-        stamp.sec, stamp.nanosec = divmod(stamp_ns, 10**9)  # the answered estimate's stamp)
-        msg.pressure = float(out.pressure)
-        msg.requested_torque = float(out.requested_torque)
-        msg.predicted_torque = float(out.predicted_torque)
-        msg.limited, msg.reason = out.limited, out.reason
-        msg.trim_pressure = float(out.trim_pressure)
+        # as Time.to_msg(): seconds and nanoseconds (node clock or the answered estimate's)
+        sec, nanosec = divmod(stamp_ns, 10**9)
         self._counts["commands"] += 1
         self._counts["limited"] += out.limited
         self._last_reason = out.reason
-        self._pub.publish(msg)
+        # the PressureCommand's CDR bytes, written without a message object (~40 us less)
+        self._pub.publish(self._encode_cmd(
+            sec, nanosec, "", float(out.pressure), float(out.requested_torque),
+            float(out.predicted_torque), bool(out.limited), out.reason,
+            float(out.trim_pressure)))
 
     def _diagnose(self):
+        with self._lock:
+            return self._status()
+
+    def _status(self):
         now = self._now()
         values = dict(self._counts, pressure_pa=self._ctl.pressure, target_nm=self._ctl.target,
                       last_reason=self._last_reason, friction_scale=self._ctl.friction_scale,
