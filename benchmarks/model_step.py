@@ -24,9 +24,9 @@ Printed per sample over the 1 kHz part, for each variant: CPU time (the thread's
 p99.9 and max [µs], wall-clock p99 [µs], the discretisation-cache misses (new dt entries) and
 their median cost, and the garbage collections that ran. Variants, interleaved ``--repeat``
 times: ``baseline``, the timer around a call that does nothing (the harness and the machine's
-own tail); ``expm``, the same path with every new dt discretised by ``expm``
-(``transition="expm"``, the path before closed-form discretisation); ``node``, the node's
-path as it is. ``--gc freeze`` (the default, as the nodes run: nodes/runner.py) runs with
+own tail); ``closed``, the same path with every new dt discretised in closed form
+(``transition="auto"``, not yet the default: see model/pack.py); ``node``, the node's path as
+it is (``expm``). ``--gc freeze`` (the default, as the nodes run: nodes/runner.py) runs with
 everything allocated before the stream frozen (:func:`gc.freeze`), ``--gc default`` without,
 ``--gc off`` with the collector disabled.
 """
@@ -152,8 +152,8 @@ def _make(variant: str, params):
     if variant == "baseline":
         return lambda *args: None
     kwargs = {"max_gap_s": 1.0}
-    if variant == "expm":
-        kwargs["transition"] = "expm"
+    if variant == "closed":
+        kwargs["transition"] = "auto"
     try:
         return AdaptiveEstimator(params, AdaptationSettings(), **kwargs).update
     except TypeError:  # a tree from before the transition option: expm is its only path
@@ -207,7 +207,7 @@ def per_sample(args) -> int:
           f"{1.0 / args.dt:g} Hz, jitter {args.jitter * 1e6:g} us, hiccups {args.hiccup:g} "
           f"({keys.size} distinct dts at 10 us); {args.repeat} run(s) per variant, gc "
           f"{args.gc}")
-    variants = ("baseline", "expm", "node")
+    variants = ("baseline", "closed", "node")
     pooled: dict[str, dict] = {v: {"cpu": [], "wall": [], "missed": [], "gc": []}
                                for v in variants}
     stamps_l = stamps.tolist()
