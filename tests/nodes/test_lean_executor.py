@@ -34,6 +34,7 @@ class _Lean(Node):
         self.add_on_set_parameters_callback(self._on_set)
         self.create_subscription(RigState, "rig_state", self._on_rig, sensor_qos())
         self._timer = self.create_timer(0.02, self._tick)
+        self._late = None
 
     def _on_set(self, params):
         bad = [p for p in params if p.name == "gain" and p.value < 0.0]
@@ -41,8 +42,10 @@ class _Lean(Node):
 
     def _on_rig(self, msg) -> None:
         self.received.append(msg)
-        if len(self.received) == 3:  # an entity created from a callback joins the wait set
-            self.create_timer(0.02, self._late_tick)
+        # an entity created from a callback joins the wait set; made once the first timer has
+        # ticked 5 times, so that count does not depend on how fast the samples come
+        if self._late is None and len(self.received) >= 3 and self.ticks >= 5:
+            self._late = self.create_timer(0.02, self._late_tick)
 
     def _tick(self) -> None:
         self.ticks += 1
