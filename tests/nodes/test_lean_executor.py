@@ -89,13 +89,19 @@ def _spin_in_thread(executor) -> tuple[threading.Thread, list]:
     return thread, errors
 
 
-def test_lean_executor_runs_every_entity_kind_and_stops_on_context_shutdown():
+def _start(node_class):
+    """Start a ``node_class`` node in a context of its own, spun by a LeanExecutor thread."""
     context = rclpy.context.Context()
     rclpy.init(context=context)
-    node = _Lean(context)
+    node = node_class(context)
     executor = LeanExecutor(context=context)
     executor.add_node(node)
     thread, errors = _spin_in_thread(executor)
+    return context, node, executor, thread, errors
+
+
+def test_lean_executor_runs_every_entity_kind_and_stops_on_context_shutdown():
+    context, node, executor, thread, errors = _start(_Lean)
     try:
         with Harness("lean_peer") as peer:
             pub = peer.node.create_publisher(RigState, "rig_state", sensor_qos())
@@ -151,12 +157,7 @@ def test_an_entity_destroyed_by_a_service_callback_leaves_the_executor_serving()
     Its next fill raised InvalidHandle out of spin (the can_bridge process died after a
     lifecycle cleanup, so its get_state was never answered).
     """
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    node = _Cleanup(context)
-    executor = LeanExecutor(context=context)
-    executor.add_node(node)
-    thread, errors = _spin_in_thread(executor)
+    context, node, executor, thread, errors = _start(_Cleanup)
     try:
         with Harness("lean_peer") as peer:
             assert _set(peer, 2.0).successful  # destroys the publisher in the callback
