@@ -97,7 +97,7 @@ from clutch_ros.nodes.can_bridge_send import PumpSender
 from clutch_ros.nodes.can_bridge_state import BridgeState
 from clutch_ros.nodes.can_diagnostics import hardware_id, node_status
 from clutch_ros.nodes.command_sources import CommandSources
-from clutch_ros.nodes.convert import can_frame_to_ros, rig_state_to_ros
+from clutch_ros.nodes.convert import RigStateEncoder, can_frame_to_ros
 from clutch_ros.nodes.cycle import Cycle
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.lockstep import time_of_frame
@@ -129,6 +129,7 @@ class CanBridgeNode(LifecycleNode):
         self._sim_time = False  # use_sim_time, read at configure
         self._time_floor = 0.0  # [s] sim time: the newest command stamp (see _node_time)
         self._rig_pub = self._raw_pub = self._rx = None
+        self._rig_encode = RigStateEncoder().encode  # rig_state written as CDR bytes
         self._rx_stop = threading.Event()
         self._sub = self._pump_timer = self._flush_timer = None
         #: the bridge's components, counters and lifecycle state, read by its diagnostics
@@ -414,8 +415,14 @@ class CanBridgeNode(LifecycleNode):
                 return
             if key == gate.codec.spec.key:  # ours never come back (echoes removed)
                 st.foreign_pump_requests += 1
-            if key == pacer.trigger or key in pacer.fallback:  # no other frame publishes
-                self._publish_latest(pacer.on_frame, key, bus_time=True)
+            if key != pacer.trigger:  # no other frame publishes, but a missing trigger's
+                # fallback (counters.PublishPacer); a rig frame while the trigger flows (all
+                # but ~1 in 22) is only counted, without the lock and clock of a publication
+                newest = assembler.newest_time  # (None: nothing decoded, nothing to publish)
+                if pacer.trigger is None or newest is None \
+                        or not pacer.fallback_due(key, newest):
+                    return
+            self._publish_latest(pacer.on_frame, key, bus_time=True)
         except Exception as err:  # noqa: BLE001 - counted; the receive thread must live
             assembler.on_error(err)
 
@@ -474,7 +481,7 @@ class CanBridgeNode(LifecycleNode):
         st.stale_groups = sample.stale
         st.stale_samples += bool(sample.stale_mask)
         assert self._rig_pub is not None  # active, so configured
-        self._rig_pub.publish(rig_state_to_ros(sample, st.offset or 0.0))
+        self._rig_pub.publish(self._rig_encode(sample, sample.stamp + (st.offset or 0.0)))
         st.published += 1
         return True
 

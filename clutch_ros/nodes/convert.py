@@ -16,12 +16,12 @@ from array import array
 import numpy as np
 from clutch_msgs.msg import CanFrame, ClutchEstimate, RigState
 
-from clutch_ros.interfaces import ESTIMATE_FIELDS
+from clutch_ros.interfaces import ESTIMATE_FIELDS, s_to_stamp
 from clutch_ros.nodes.stamps import sec_to_stamp
-from clutch_ros.rigstate import fill_msg
+from clutch_ros.rigstate import RigSample, msg_fields
 
-__all__ = ["CdrCodec", "EstimateEncoder", "EstimateMessage", "can_frame_to_ros",
-           "rig_state_to_ros"]
+__all__ = ["CdrCodec", "EstimateEncoder", "EstimateMessage", "RigStateEncoder",
+           "can_frame_to_ros"]
 
 
 #: (message field, Estimate attribute) of the per-lamella arrays
@@ -108,12 +108,33 @@ class EstimateMessage:
         return msg
 
 
-def rig_state_to_ros(sample, offset: float = 0.0):
-    """Return an rclpy ``RigState`` of ``sample`` stamped ``sample.stamp + offset`` [s].
+class RigStateEncoder:
+    """The serialised ``RigState`` of a rig sample, without a message object.
 
-    The fields come from :func:`clutch_ros.rigstate.fill_msg` (the one RigState mapping).
+    For ``Publisher.publish(bytes)`` on the can_bridge's receive thread: the message that
+    :func:`clutch_ros.rigstate.fill_msg` fills (the fields of
+    :func:`clutch_ros.rigstate.msg_fields`, the one RigState mapping), written by one
+    :class:`CdrCodec` call instead of building an rclpy message (its constructor and
+    ``setattr`` of 19 fields) that ``publish`` then converts again.
     """
-    return fill_msg(RigState(), sample, sample.stamp + offset)
+
+    HEADER = ("header.stamp.sec", "header.stamp.nanosec", "header.frame_id")
+
+    def __init__(self, msg_type=RigState):
+        """Compile for ``msg_type`` (ValueError if its fields are not msg_fields' plus a header)."""
+        self.codec = CdrCodec(msg_type)
+        names = self.codec.names
+        self._order = names[len(self.HEADER):]
+        if names[:len(self.HEADER)] != self.HEADER \
+                or set(self._order) != set(msg_fields(RigSample())):
+            raise ValueError(f"{msg_type.__name__} fields {names} are not a header and "
+                             f"msg_fields' {sorted(msg_fields(RigSample()))}")
+
+    def encode(self, sample, stamp_s: float, frame_id: str = "clutch") -> bytes:
+        """Return the RigState of ``sample`` stamped ``stamp_s`` [s] (as :func:`fill_msg`)."""
+        fields = msg_fields(sample)
+        sec, nanosec = s_to_stamp(stamp_s)
+        return self.codec.encode(sec, nanosec, frame_id, *[fields[n] for n in self._order])
 
 
 def can_frame_to_ros(frame, offset: float = 0.0):

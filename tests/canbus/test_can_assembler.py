@@ -306,6 +306,30 @@ def test_publish_pacer_trigger_rate_cap_and_fallback():
         PublishPacer(0.0, speed)
 
 
+def test_publish_pacer_fallback_due_first_publishes_what_on_frame_alone_does():
+    """The bridge asks fallback_due before on_frame: the same publications, frame for frame."""
+    import random
+
+    from clutch_ros.canbus.counters import PublishPacer
+
+    fast, speed, temps, foreign = 0x100, 0x101, 0x110, 0x7E0
+    rng = random.Random(11)
+    for rate in (50.0, 100.0, 1000.0):
+        alone = PublishPacer(rate, speed, frozenset({fast, speed, temps}))
+        asked = PublishPacer(rate, speed, frozenset({fast, speed, temps}))
+        t, decisions = 10.0, 0
+        for _ in range(5000):
+            # frames every 0-3 ms, pauses, a time going back, the trigger now and then
+            t += rng.choice([0.0, 0.0005, 0.001, 0.003, 0.03, -2.0 if rng.random() < 0.01
+                             else 0.002])
+            key = rng.choice([fast, fast, temps, foreign, speed if rng.random() < 0.3 else fast])
+            expected = alone.on_frame(key, t)
+            got = (key == asked.trigger or asked.fallback_due(key, t)) and asked.on_frame(key, t)
+            assert got == expected, (rate, t, key)
+            decisions += expected
+        assert decisions > 50  # publications happened, fallback and trigger alike
+
+
 def test_publish_pacer_until_allowed_is_the_first_moment_any_frame_can_publish():
     """The bridge's receive thread sleeps until then: no publication may fall before it."""
     import copy
