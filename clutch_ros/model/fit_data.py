@@ -181,7 +181,7 @@ class FitOptions:
             gives one per usable core)
         transition: how the fit's model computes ``e^{A dt}`` (PackModel ``transition``:
             ``"auto"``, closed form where it applies, or ``"expm"``); the fit's verdict and
-            values do not depend on it (tests/model/test_fit_jumps.py)
+            values do not depend on it (tests/offline/test_fit_robust.py)
 
     """
 
