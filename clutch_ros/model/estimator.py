@@ -132,7 +132,7 @@ class ClutchEstimator:
     def __init__(self, params: ClutchParams, *, max_gap_s: float = 1.0,
                  accuracy_min_torque: float = 1.0,
                  overshoot_limit: float = 1.1, undershoot_limit: float = 0.9,
-                 dt_resolution: float = 1e-5, transition: str = "expm"):
+                 dt_resolution: float = 1e-5, transition: str = "auto"):
         if not (max_gap_s > 0.0 and accuracy_min_torque >= 0.0):
             raise InputError(f"max_gap_s must be > 0 and accuracy_min_torque >= 0, got "
                              f"{max_gap_s!r}, {accuracy_min_torque!r}")

@@ -179,6 +179,9 @@ class FitOptions:
             GIL); 1: one after the other. The columns, so the fit, are the same bits either
             way. How many cores a process may use is the caller's to know (``clutch fit``
             gives one per usable core)
+        transition: how the fit's model computes ``e^{A dt}`` (PackModel ``transition``:
+            ``"auto"``, closed form where it applies, or ``"expm"``); the fit's verdict and
+            values do not depend on it (tests/offline/test_fit_robust.py)
 
     """
 
@@ -204,6 +207,7 @@ class FitOptions:
     max_seconds: float | None = None
     min_slip_speed: float = 0.05
     workers: int = 1
+    transition: str = "auto"
 
 
 

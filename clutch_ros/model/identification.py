@@ -39,18 +39,25 @@ parameters. Start: the base parameters (Table 7 for ff_t/ff_v when the base has 
 with μ_ref rescaled by a linear least-squares fit of Eq. 1 to the torque.
 
 Standard errors: ``σ² (JᵀJ)⁻¹`` with ``σ² = Σ r² / (m − n)`` and J the solver's
-finite-difference Jacobian at the optimum (central differences when it is near-singular),
-mapped to parameter units (``v · se`` for log parameters). They assume white residuals and
-exact inputs; noisy inputs (temperature, pressure) and model error make them optimistic — on
-the simulated rig the true error is 1–5 standard errors: read them as a lower bound. The
-same Jacobian, with its columns normalised, must have full rank: a singular value below
-``rank_tol`` of the largest raises :class:`UnidentifiableParameterError` naming the
-parameters of the null direction.
+finite-difference Jacobian at the optimum, mapped to parameter units (``v · se`` for log
+parameters). They assume white residuals and exact inputs; noisy inputs (temperature,
+pressure) and model error make them optimistic — on the simulated rig the true error is 1–5
+standard errors: read them as a lower bound. The same Jacobian, with its columns normalised,
+must have full rank: a singular value below ``rank_tol`` of the largest raises
+:class:`UnidentifiableParameterError` naming the parameters of the null direction.
+
+The Jacobian (solver and rank check): central differences where both one-sided differences
+agree, else the one-sided slope of smaller magnitude (:mod:`~clutch_ros.model.fd_jacobian`).
+The residuals jump where a parameter moves a stick-slip event of the drivetrain compliance
+across a sample stamp, and a fit's optimum tends to sit right at such an edge; forward
+differences across it spiked the columns that crossed, so that the rank check's verdict
+depended on round-off (the coulomb fit with ``--fit-compliance`` flipped on a 1e-9 change of
+the discretisation).
 
 Refusals and data preparation (decimation, :data:`SAMPLE_BUDGET`): :mod:`~.fit_data`.
 Speed (``python -m benchmarks.model_fit``): an evaluation simulates ``max_samples`` samples
 (0: all) in the kernel's output-only loop (``simulate_columns``, ~0.5 µs each); 5–15
-iterations of n + 1 evaluations; ``max_seconds`` (45 s) ends a fit early, not converged.
+iterations of 2 n + 1 evaluations; ``max_seconds`` (45 s) ends a fit early, not converged.
 """
 
 from __future__ import annotations
@@ -68,6 +75,7 @@ import numpy as np
 from clutch_ros.model import kernel
 from clutch_ros.model.batch import estimate_batch
 from clutch_ros.model.compliance import comply
+from clutch_ros.model.fd_jacobian import JacobianOf
 from clutch_ros.model.fit_data import (
     SAMPLE_BUDGET,
     FitOptions,
@@ -77,9 +85,7 @@ from clutch_ros.model.fit_data import (
     NoMeasuredTorqueError,
     TooShortError,
     UnidentifiableParameterError,
-    central_jacobian,
     check_data,
-    conditioning,
     model_block_means,
     prepare_segments,
     rank_check,
@@ -297,7 +303,7 @@ class _Problem:
 
     def simulate(self, params: ClutchParams) -> list[tuple[FloatArray, ...]]:
         """Block-mean model outputs (torque, front and rear pressure) per segment."""
-        model = PackModel(params)
+        model = PackModel(params, transition=self.opts.transition)
         out = []
         for s in self.segments:
             cols = np.empty((len(kernel.OUTPUT_COLUMNS), len(s)))
@@ -405,19 +411,18 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
     # this module (replay reports use RunEvaluation)
     from scipy.optimize import least_squares
 
-    # the Jacobian's columns run in `workers` threads (scipy's own forward differences, the
-    # same steps; only where each column is computed changes)
+    # the Jacobian: both one-sided differences per column, so that a residual jumping within a
+    # step of the point (a break-away crossing a sample stamp) cannot spike it (fd_jacobian);
+    # its 2 n evaluations run in `workers` threads (the same bits either way)
     pool = ThreadPoolExecutor(workers, thread_name_prefix="clutch-fit") if workers > 1 else None
     try:
-        res = least_squares(problem, z0, bounds=(problem.lower, problem.upper), method="trf",
-                            x_scale=1.0, diff_step=opts.diff_step, ftol=opts.ftol,
-                            xtol=opts.xtol, gtol=opts.gtol, max_nfev=opts.max_nfev,
-                            callback=_Deadline(t0, opts.max_seconds),
-                            workers=pool.map if pool else None)
+        fun = JacobianOf(problem, opts.diff_step, pool.map if pool else map)
+        res = least_squares(fun, z0, jac=fun.jacobian, bounds=(problem.lower, problem.upper),
+                            method="trf", x_scale=1.0, ftol=opts.ftol, xtol=opts.xtol,
+                            gtol=opts.gtol, max_nfev=opts.max_nfev,
+                            callback=_Deadline(t0, opts.max_seconds))
         z = res.x
-        jac = res.jac
-        if conditioning(jac) < 1e-2:  # near-singular: confirm with O(h²) central differences
-            jac = central_jacobian(problem, z, opts.diff_step, pool.map if pool else map)
+        jac = res.jac  # the jump-robust Jacobian at res.x (central where the sides agree)
     finally:  # an interrupt does not wait for the columns still queued
         if pool:
             pool.shutdown(wait=True, cancel_futures=True)

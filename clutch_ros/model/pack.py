@@ -28,10 +28,10 @@ start of the step (see :mod:`clutch_ros.model.spline`).
 
 The discretisation is cached per dt: dt is quantised to ``dt_resolution`` (default 10 µs) and
 the matrices are built for the quantised value, so a jittery 1 kHz stamp (±50 µs) re-uses ~10
-entries. A new dt's ``e^{A dt}`` comes from ``expm`` (~0.2 ms), or with ``transition="auto"``
-in closed form from the pack's modes (:class:`~clutch_ros.model.discretisation.PackModes`,
-exact to rounding, ~80 us) for the laws whose states are decoupled from the pack (``none``,
-``coulomb``, ``ff_t``); why that is not the default yet: :class:`PackModel`.
+entries. A new dt's ``e^{A dt}`` comes in closed form from the pack's modes
+(:class:`~clutch_ros.model.discretisation.PackModes`, exact to rounding, ~80 µs) for the laws
+whose states are decoupled from the pack (``none``, ``coulomb``, ``ff_t``), else from ``expm``
+(~0.2-0.5 ms; ``transition="expm"`` forces it, the reference).
 The error is ≤ 5 µs of hold time per step, random in sign, i.e. ≤ 5e-5 of the transient per
 step for the 0.1 s pack time constant, and none at all at equilibrium (which is exact for every
 dt). Dts below the resolution count as one resolution step; ``dt_resolution=0`` keys the
@@ -137,14 +137,15 @@ class PackModel:
         params: :class:`~clutch_ros.model.params.ClutchParams`.
         dt_resolution: quantisation of dt for the discretisation cache [s] (0 = exact dt).
         cache_size: number of dts kept.
-        transition: how a new dt's ``e^{A dt}`` is computed: ``"auto"`` in closed form
-            (:class:`~clutch_ros.model.discretisation.PackModes`) where the law's states are
-            decoupled from the pack (``none``, ``coulomb``, ``ff_t``), else by ``expm``;
-            ``"expm"`` (default): always by ``expm``. Not yet the default: with ``"auto"``
-            the outputs agree with ``expm`` to ~1e-9 (tests/model/test_pack.py), yet
-            ``clutch fit --law auto --fit-compliance`` on the golden runs lands the coulomb
-            law on a different, rank-deficient optimum (film depth vs pressure loss: singular
-            value ratio 4.6e-5 against 0.042), a sensitivity of that fit not yet understood.
+        transition: how a new dt's ``e^{A dt}`` is computed: ``"auto"`` (default) in closed
+            form (:class:`~clutch_ros.model.discretisation.PackModes`) where the law's states
+            are decoupled from the pack (``none``, ``coulomb``, ``ff_t``), else by ``expm``;
+            ``"expm"``: always by ``expm`` (the reference). The outputs agree with ``expm`` to
+            ~1e-9 (tests/model/test_pack.py). That difference once flipped ``clutch fit --law
+            auto --fit-compliance``'s coulomb fit to rank-deficient: its optimum sits where a
+            break-away crosses a sample stamp, a jump of the residual that forward differences
+            spiked depending on round-off; the fit's Jacobian now takes the one-sided slope
+            there (:mod:`~clutch_ros.model.fd_jacobian`; tests/offline/test_fit_robust.py).
 
     """
 
@@ -154,7 +155,7 @@ class PackModel:
     _last_entry: _Entry | None
 
     def __init__(self, params: ClutchParams, *, dt_resolution: float = 1e-5,
-                 cache_size: int = 256, transition: str = "expm") -> None:
+                 cache_size: int = 256, transition: str = "auto") -> None:
         if not (dt_resolution >= 0.0 and math.isfinite(dt_resolution)):
             raise InputError(f"dt_resolution must be finite and >= 0, got {dt_resolution!r}")
         if transition not in TRANSITIONS:
