@@ -63,6 +63,7 @@ __all__ = [
     "coverage",
     "features",
     "fit_error_model",
+    "negative_log_likelihood",
     "phases",
     "sensor_noise",
     "torque_std",
@@ -351,6 +352,23 @@ def phases(t: np.ndarray, pressure: np.ndarray, slip: np.ndarray) -> np.ndarray:
             last = t[i]
         out[i] = t[i] - last <= TRANSIENT_WINDOW
     return out
+
+
+def negative_log_likelihood(measured: np.ndarray, modelled: np.ndarray,
+                            std: np.ndarray) -> float:
+    """Mean Gaussian negative log-likelihood [nats per sample] of the residuals under ``std``.
+
+    ``log(std) + r^2 / (2 std^2) + log(2 pi) / 2`` averaged over the samples with a finite
+    residual and a finite std > 0 (NaN when there is none): a held-out score of an error model
+    that rewards a band as narrow as the errors allow, not just its coverage.
+    """
+    resid = np.asarray(measured, dtype=float) - np.asarray(modelled, dtype=float)
+    std = np.asarray(std, dtype=float)
+    ok = np.isfinite(resid) & np.isfinite(std) & (std > 0.0)
+    if not ok.any():
+        return math.nan
+    r, s = resid[ok], std[ok]
+    return float(np.mean(np.log(s) + 0.5 * (r / s) ** 2) + 0.5 * math.log(2.0 * math.pi))
 
 
 def coverage(measured: np.ndarray, modelled: np.ndarray, std: np.ndarray,

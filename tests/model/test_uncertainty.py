@@ -14,6 +14,7 @@ from clutch_ros.model.uncertainty import (
     coverage,
     features,
     fit_error_model,
+    negative_log_likelihood,
     phases,
     torque_std,
 )
@@ -203,3 +204,23 @@ def test_a_transient_error_of_fixed_twist_is_identified_and_holds_at_other_slip_
         wrong[speed] = coverage(measured, modelled, torque_std(fixed_time, t, modelled, slip),
                                 transient)["coverage_95_transient"]
     assert wrong[3.0] > cov["coverage_95_transient"] + 0.02 and wrong[1.0] < 0.9, wrong
+
+
+def test_the_negative_log_likelihood_is_the_gaussian_one_over_usable_samples():
+    measured = np.array([1.0, 3.0, np.nan, 5.0, 2.0])
+    modelled = np.array([0.0, 1.0, 0.0, np.nan, 2.0])
+    std = np.array([1.0, 2.0, 1.0, 1.0, np.nan])
+    # samples 0 and 1 only (NaN residual or std elsewhere): r/s = 1 and 1, log s = 0 and log 2
+    expected = 0.5 * (0.0 + 0.5 + math.log(2.0) + 0.5) + 0.5 * math.log(2.0 * math.pi)
+    np.testing.assert_allclose(negative_log_likelihood(measured, modelled, std), expected,
+                               rtol=1e-15)  # the same arithmetic: rounding only
+    assert math.isnan(negative_log_likelihood(measured[2:3], modelled[2:3], std[2:3]))
+    # the true std scores best: a band twice or half as wide is worse on the same residuals
+    rng = np.random.default_rng(3)
+    r = rng.normal(0.0, 4.0, 20000)
+    scores = [negative_log_likelihood(r, np.zeros_like(r), np.full_like(r, s))
+              for s in (2.0, 4.0, 8.0)]
+    assert scores[1] < min(scores[0], scores[2])
+    # its value at the true std: log 4 + 1/2 + log(2 pi)/2, to the sampling error of mean(z^2)
+    np.testing.assert_allclose(scores[1], math.log(4.0) + 0.5 + 0.5 * math.log(2 * math.pi),
+                               atol=0.02)  # 0.5 * std(z^2)/sqrt(n) = 0.005: 4 sigma
