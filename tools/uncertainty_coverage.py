@@ -30,10 +30,11 @@ and of its fitting runs are made on this, never on the listed (unseen) runs' tab
 The fitting set (``--fit``) is a choice, and every run in it leaves the table. The default
 runs of the issue-24 figure are ``table3_seq2_10rpm,table4_seq1``: the runs the estimator
 parameters (tests/data/uncertainty/golden_fit_ff_t.yaml) were fitted on, so that every listed
-run is unseen by the estimator and the band alike. A wider set (a 30 rpm and a ramp run
-added, e.g. ``--fit table3_seq2_10rpm,table4_seq1,table3_seq2_30rpm,table3_seq4_10rpm``)
-was measured and not adopted (benchmarks/RESULTS.md, "torque band: fitting set and
-cross-validation").
+run is unseen by the estimator and the band alike. A wider set (a 30 rpm run, the same steps at
+the other slip speed, and a ramp run, the middle of the three ramp durations:
+``--fit table3_seq2_10rpm,table4_seq1,table3_seq2_30rpm,table3_seq4_10rpm``; ``clutch fit
+--band-bags``) was measured too and leaves 20 runs (benchmarks/RESULTS.md, "torque band with
+the recent error").
 """
 
 from __future__ import annotations
@@ -85,6 +86,10 @@ def main() -> int:
     ap.add_argument("--no-golden", action="store_true", help="list simulated runs only")
     ap.add_argument("--time-constant", type=float, default=unc.DEFAULTS.time_constant,
                     help="rate filter time constant of the error model [s]")
+    ap.add_argument("--recent-time-constant", type=float,
+                    default=unc.DEFAULTS.recent_time_constant,
+                    help="low-pass time constant of the recent measured error [s]; 0: the "
+                         "band without it (clutch_ros.model.uncertainty)")
     ap.add_argument("--exclude", default="",
                     help="golden runs left out of the table (those the --params were fitted on)")
     ap.add_argument("--fit-on-plant", action="store_true",
@@ -113,7 +118,8 @@ def main() -> int:
         mode = band_mode(flat)
     fitted = args.fit.split(",")
     skip = set(fitted) | set(filter(None, args.exclude.split(",")))
-    base = replace(unc.DEFAULTS, time_constant=args.time_constant)
+    base = replace(unc.DEFAULTS, time_constant=args.time_constant,
+                   recent_time_constant=args.recent_time_constant)
     rows = []
     runs = [] if args.no_golden else [(name, GOLDEN / name) for name in GOLDEN_RUNS
                                       if name not in skip]

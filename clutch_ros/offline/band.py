@@ -123,7 +123,7 @@ def score_band(model: ErrorModel, series: dict[str, np.ndarray]) -> dict[str, An
     :func:`~clutch_ros.model.uncertainty.coverage`'s dict and ``nll`` [nats per sample].
     """
     t, modelled, slip = series["t"], series["modelled"], series["slip"]
-    std = unc.torque_std(model, t, modelled, slip)
+    std = unc.torque_std(model, t, modelled, slip, series["measured"])
     out = unc.coverage(series["measured"], modelled, std, unc.phases(t, series["pressure"], slip))
     out["nll"] = unc.negative_log_likelihood(series["measured"], modelled, std)
     return out

@@ -44,7 +44,7 @@ def fitted():
 
 def _band(model, series):
     t, modelled, slip = series["t"], series["modelled"], series["slip"]
-    std = unc.torque_std(model, t, modelled, slip)
+    std = unc.torque_std(model, t, modelled, slip, series["measured"])  # as the node does
     transient = unc.phases(t, series["pressure"], slip)
     return std, transient, unc.coverage(series["measured"], modelled, std, transient)
 
@@ -126,7 +126,7 @@ def test_cross_validation_scores_each_fitting_run_with_the_model_of_the_others(f
                                    rtol=1e-12)  # the same fit and replay: deterministic
         # the score is the Gaussian one of the band's std on the held-out run
         std = unc.torque_std(fit_band([other], params, "adapted_gain"), series["t"],
-                             series["modelled"], series["slip"])
+                             series["modelled"], series["slip"], series["measured"])
         ok = np.isfinite(series["measured"] - series["modelled"]) & np.isfinite(std)
         z = (series["measured"] - series["modelled"])[ok] / std[ok]
         nll = np.mean(np.log(std[ok]) + 0.5 * z ** 2) + 0.5 * np.log(2 * np.pi)
