@@ -37,7 +37,7 @@ With a torque sensor the node knows how wrong the model has just been, and the m
 mostly an offset held for seconds (a friction hysteresis after a pressure change, the same
 across noise seeds). With ``z = (measured - modelled) / sigma`` and ``E`` the low-pass
 (``recent_time_constant`` [s]) of ``z^2`` over the *previous* measured samples (1 before the
-first and after a gap above ``max_gap``; held while no measurement comes)::
+first and after a gap above ``max_gap``; held up to ``max_gap`` while no measurement comes)::
 
     modelled_torque_std^2 = noise^2 + recent_scale^2 * (1 - recent_weight + recent_weight * E)
                                       * (sigma^2 - noise^2)
@@ -110,7 +110,7 @@ class ErrorModel:
         recent_weight: weight of the recent error in the band (module docstring) [1], 0..1.
         recent_time_constant: low-pass time constant of the recent error [s], >= 0 (0:
             :func:`fit_error_model` leaves the recent error out).
-        recent_scale: factor of the whole band (the second calibration) [1], > 0.
+        recent_scale: factor of the model terms (the second calibration) [1], > 0.
 
     """
 

@@ -41,8 +41,9 @@ UNCERTAINTY_PARAMS = [
               "0: the band ignores the torque sensor", "1", 0.0, 1.0, read_only=True),
     ParamSpec("uncertainty.recent_time_constant", _D.recent_time_constant, "low-pass time "
               "constant of the recent measured error", "s", 0.0, 100.0, read_only=True),
-    ParamSpec("uncertainty.recent_scale", _D.recent_scale, "factor of the whole band (its "
-              "calibration with the recent error)", "1", 1e-6, 1e3, read_only=True),
+    ParamSpec("uncertainty.recent_scale", _D.recent_scale, "factor of the model terms of "
+              "modelled_torque_std (its calibration with the recent error)", "1", 1e-6, 1e3,
+              read_only=True),
 ]
 
 
