@@ -3,7 +3,7 @@
     .venv/bin/python tools/uncertainty_coverage.py [--fit table3_seq2_10rpm[,run...]]
         [--sim-seeds 2] [--plant rig_truth_elastic] [--params flexiforce_8] [--no-golden]
         [--exclude run,...] [--fit-on-plant] [--write-fit-runs DIR] [--adapt [--adapt-gain]]
-        [--band fixed|adapted|adapted_gain] [--file-band]
+        [--band fixed|adapted|adapted_gain] [--file-band] [--cv]
 
 Runs: the golden bags (tests/data/golden/bags) and, with ``--sim-seeds N``, N fresh runs of
 the simulated rig (truth plant ``--plant``, default the golden bags' ``rig_truth_elastic``)
@@ -22,6 +22,19 @@ the error model is the one of the adapted estimate (``--band`` names the mode as
 --band`` does: ``--adapt`` is ``adapted``, ``--adapt --adapt-gain`` ``adapted_gain``;
 :mod:`clutch_ros.offline.band`). ``--file-band``: fit nothing, check the ``uncertainty.*`` of
 the ``--params`` file (as ``clutch fit --band`` wrote it), in the mode its ``adapt.*`` say.
+``--cv``: score the error model on the ``--fit`` runs only, each held out in turn and the model
+fitted on the others (:func:`clutch_ros.offline.band.cross_validate_band`; coverage and mean
+negative log-likelihood per held-out run), and list no other run: choices of the error model
+and of its fitting runs are made on this, never on the listed (unseen) runs' table.
+
+The fitting set (``--fit``) is a choice, and every run in it leaves the table. The default
+runs of the issue-24 figure are ``table3_seq2_10rpm,table4_seq1``: the runs the estimator
+parameters (tests/data/uncertainty/golden_fit_ff_t.yaml) were fitted on, so that every listed
+run is unseen by the estimator and the band alike. A wider set (a 30 rpm run, the same steps at
+the other slip speed, and a ramp run, the middle of the three ramp durations:
+``--fit table3_seq2_10rpm,table4_seq1,table3_seq2_30rpm,table3_seq4_10rpm``; ``clutch fit
+--band-bags``) was measured too and leaves 20 runs (benchmarks/RESULTS.md, "torque band with
+the recent error").
 """
 
 from __future__ import annotations
@@ -39,7 +52,14 @@ import numpy as np
 from clutch_ros.config.params_file import load_flat, load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model import uncertainty as unc
-from clutch_ros.offline.band import BAND_MODES, band_mode, fit_band, replay_series
+from clutch_ros.offline.band import (
+    BAND_MODES,
+    band_mode,
+    cross_validate_band,
+    fit_band,
+    replay_series,
+    score_band,
+)
 from clutch_ros.offline.golden import PLANT
 from clutch_ros.offline.rig_runs import GOLDEN_RUNS, golden_scenario, simulate_run, write_run
 
@@ -66,6 +86,10 @@ def main() -> int:
     ap.add_argument("--no-golden", action="store_true", help="list simulated runs only")
     ap.add_argument("--time-constant", type=float, default=unc.DEFAULTS.time_constant,
                     help="rate filter time constant of the error model [s]")
+    ap.add_argument("--recent-time-constant", type=float,
+                    default=unc.DEFAULTS.recent_time_constant,
+                    help="low-pass time constant of the recent measured error [s]; 0: the "
+                         "band without it (clutch_ros.model.uncertainty)")
     ap.add_argument("--exclude", default="",
                     help="golden runs left out of the table (those the --params were fitted on)")
     ap.add_argument("--fit-on-plant", action="store_true",
@@ -81,6 +105,9 @@ def main() -> int:
                          "or as --adapt/--adapt-gain say)")
     ap.add_argument("--file-band", action="store_true",
                     help="check the --params file's uncertainty.* (fit nothing)")
+    ap.add_argument("--cv", action="store_true",
+                    help="leave-one-out cross-validation on the --fit runs only (fitting data; "
+                         "no other run is listed)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     params = load_params(preset_path(args.params))
@@ -91,7 +118,8 @@ def main() -> int:
         mode = band_mode(flat)
     fitted = args.fit.split(",")
     skip = set(fitted) | set(filter(None, args.exclude.split(",")))
-    base = replace(unc.DEFAULTS, time_constant=args.time_constant)
+    base = replace(unc.DEFAULTS, time_constant=args.time_constant,
+                   recent_time_constant=args.recent_time_constant)
     rows = []
     runs = [] if args.no_golden else [(name, GOLDEN / name) for name in GOLDEN_RUNS
                                       if name not in skip]
@@ -102,6 +130,8 @@ def main() -> int:
             fit_bags = [_simulate(name, 0, args.plant, out / name) for name in fitted]
             if args.write_fit_runs:
                 return 0
+        if args.cv:
+            return _print_cv(cross_validate_band(fit_bags, params, mode, base), mode, args)
         model = (unc.ErrorModel.from_flat(flat) if args.file_band
                  else fit_band(fit_bags, params, mode, base))
         for k in range(1, args.sim_seeds + 1):
@@ -109,11 +139,7 @@ def main() -> int:
                 path = _simulate(name, k, args.plant, Path(tmp) / f"{name}_sim{k}")
                 runs.append((path.name, path))
         for name, bag in runs:
-            s = replay_series(bag, params, mode)
-            t, mod, slip = s["t"], s["modelled"], s["slip"]
-            std = unc.torque_std(model, t, mod, slip)
-            cov = unc.coverage(s["measured"], mod, std, unc.phases(t, s["pressure"], slip))
-            rows.append({"run": name, **cov})
+            rows.append({"run": name, **score_band(model, replay_series(bag, params, mode))})
     if args.json:
         json.dump({"model": model.to_flat(), "band": mode, "runs": rows}, sys.stdout, indent=1)
         return 0
@@ -136,6 +162,22 @@ def main() -> int:
                       for r in rows])
     sys.stdout.write(f"min all/trans/steady: {np.nanmin(worst, axis=0).round(3)}  "
                      f"max: {np.nanmax(worst, axis=0).round(3)}\n")
+    return 0
+
+
+def _print_cv(rows: list[dict], mode: str, args) -> int:
+    """Print (or ``--json``) the cross-validation table of the ``--fit`` runs."""
+    if args.json:
+        json.dump({"band": mode, "cv": rows}, sys.stdout, indent=1)
+        return 0
+    sys.stdout.write(f"band {mode}, leave one of {args.fit} out (fitted on the others)\n"
+                     f"{'held-out run':32s} {'all':>6s} {'trans':>6s} {'steady':>6s} "
+                     f"{'nll':>7s}\n")
+    for r in rows:
+        sys.stdout.write(f"{r['run']:32s} {100 * r['coverage_95']:6.1f} "
+                         f"{100 * r['coverage_95_transient']:6.1f} "
+                         f"{100 * r['coverage_95_steady']:6.1f} {r['nll']:7.3f}\n")
+    sys.stdout.write(f"summed nll {sum(r['nll'] for r in rows):.4f}\n")
     return 0
 
 

@@ -32,7 +32,10 @@ idle or a loaded machine. ``--fit-compliance`` identifies the drivetrain complia
 The torque uncertainty (``uncertainty.*``, :mod:`clutch_ros.model.uncertainty`) is identified
 on the fit bags replayed as the estimator node runs the ``--band`` mode (default ``adapted``:
 the node's online adaptation; :mod:`clutch_ros.offline.band`), and the file gets the
-``adapt.enabled`` / ``adapt.spline_gain`` of that mode.
+``adapt.enabled`` / ``adapt.spline_gain`` of that mode. ``--band-bags`` adds runs the error
+model alone is identified on (beside the fit bags; the estimator's parameters are not fitted
+on them), so that its fitting set can cover regimes (slip speeds, ramps) the parameter fit
+does not need.
 
 ``--law auto`` fits every passive law and writes the one with the lowest mean RMSE ratio
 model / Eq. 1 on the ``--validate`` bags (on the fit bags without them), printing the ratio
@@ -120,6 +123,9 @@ def add_parser(sub) -> None:
                         "node runs it: adapted (the friction scale, the node's default), "
                         "adapted_gain (and the spline gain), fixed (no adaptation); the file "
                         "gets the adapt.enabled / adapt.spline_gain that run it")
+    p.add_argument("--band-bags", nargs="+", default=[], metavar="BAG",
+                   help="further bags the error model (uncertainty.*) is identified on, beside "
+                        "the fit bags; the estimator's parameters are not fitted on them")
     add_batch_options(p, "bags' reads")
     p.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
     p.set_defaults(func=run)
@@ -186,8 +192,11 @@ def run(args) -> int:
               f"fit RMSE {result.rmse:.3f} N m; fitted: "
               + ", ".join(f"{k} = {result.values[k]:.6g} +- {result.stderr[k]:.2g}"
                           for k in result.keys))
-    error_model = fit_band(args.bags, result.params, args.band)  # modelled_torque_std
+    band_bags = [*args.bags, *args.band_bags]
+    error_model = fit_band(band_bags, result.params, args.band)  # modelled_torque_std
     header += f"\nuncertainty.*: the {args.band} estimate's error model (--band)"
+    if args.band_bags:
+        header += f", also fitted on {', '.join(str(b) for b in args.band_bags)}"
     write_params(result.params, out, header=header,
                  extra={**error_model.to_flat(), **band_extra(args.band)})
     cal = info["calibration"]
@@ -200,7 +209,8 @@ def run(args) -> int:
                    calibration_comparison=(None if info["comparison"] is None
                                            else _comparison_brief(info["comparison"])),
                    calibration_error=info["calibration_error"],
-                   uncertainty=error_model.to_flat(), band=args.band)
+                   uncertainty=error_model.to_flat(), band=args.band,
+                   band_bags=[str(b) for b in band_bags])
         if auto is not None:
             doc.update(auto=[s.to_dict() for s in auto.scores], best_law=auto.best.law,
                        validated_on=auto.validated_on)

@@ -190,8 +190,9 @@ def _adaptive_job(adaptive, item, args, error_model):
     start = time.perf_counter()
     result, write = adaptive.replay(source, topic=args.topic)
     # modelled_torque_std of the adapted torque, as the node computes it
-    result.torque_std = torque_std(error_model, stamps_s(result.rig),
-                                   result.batch.modelled_torque, result.batch.slip_speed_filtered)
+    b = result.batch
+    result.torque_std = torque_std(error_model, stamps_s(result.rig), b.modelled_torque,
+                                   b.slip_speed_filtered, b.measured_torque)
     summary = result.summary
     summary.update(uncertainty_summary(result.rig, result.batch, result.torque_std))
     seconds = time.perf_counter() - start

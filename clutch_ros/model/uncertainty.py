@@ -33,6 +33,22 @@ fixed. Last, one quantile calibration scales the model terms (not the sensor's n
 of the fitting run's ``|residual| / sigma`` are below 1.96. The parameters live in the
 parameter file under ``uncertainty.*`` (:data:`DEFAULTS` when absent).
 
+With a torque sensor the node knows how wrong the model has just been, and the model's error is
+mostly an offset held for seconds (a friction hysteresis after a pressure change, the same
+across noise seeds). With ``z = (measured - modelled) / sigma`` and ``E`` the low-pass
+(``recent_time_constant`` [s]) of ``z^2`` over the *previous* measured samples (1 before the
+first and after a gap above ``max_gap``; held up to ``max_gap`` while no measurement comes)::
+
+    modelled_torque_std^2 = noise^2 + recent_scale^2 * (1 - recent_weight + recent_weight * E)
+                                      * (sigma^2 - noise^2)
+
+(the sensor's noise is white: the recent error scales the model terms only). Without a sensor
+``E`` stays 1. ``recent_weight`` [1] (0..1) is the Gaussian ML fit under the
+calibrated ``sigma``, ``recent_scale`` [1] a second calibration to 95 % (both when
+``base.recent_time_constant > 0``). The time constant is not fitted: the likelihood improves
+monotonically down to one sample (the band would copy the last residual); 1 s is
+``adapt.apply_interval`` (the adaptation moves the model at most once a second).
+
 Phases (for :func:`coverage`): a sample is *transient* within ``TRANSIENT_WINDOW`` [s] after
 the actuating pressure moved faster than ``TRANSIENT_RATE`` of its run's range per second
 (``|dp/dt|``, backward difference over ``RATE_SPAN`` [s]), or the slip speed reversed (its
@@ -52,20 +68,9 @@ import numpy as np
 from clutch_ros.model.errors import ModelError
 
 __all__ = [
-    "DEFAULTS",
-    "QUIET_FRACTION",
-    "ErrorModel",
-    "TRANSIENT_RATE",
-    "TRANSIENT_WINDOW",
-    "RATE_SPAN",
-    "SLIP_DEADBAND",
-    "Z95",
-    "coverage",
-    "features",
-    "fit_error_model",
-    "phases",
-    "sensor_noise",
-    "torque_std",
+    "DEFAULTS", "QUIET_FRACTION", "ErrorModel", "TRANSIENT_RATE", "TRANSIENT_WINDOW",
+    "RATE_SPAN", "SLIP_DEADBAND", "Z95", "coverage", "features", "fit_error_model",
+    "negative_log_likelihood", "phases", "sensor_noise", "torque_std",
 ]
 
 #: Two-sided 95 % quantile of the normal distribution.
@@ -102,6 +107,10 @@ class ErrorModel:
         stick_speed: slip speed below which the clutch counts as sticking [rad/s], > 0.
         max_gap: a time step above it (or not positive) restarts the rate filter [s], > 0.
         slip_floor: ``L`` is 0 below this slip speed (not slipping) [rad/s], > 0.
+        recent_weight: weight of the recent error in the band (module docstring) [1], 0..1.
+        recent_time_constant: low-pass time constant of the recent error [s], >= 0 (0:
+            :func:`fit_error_model` leaves the recent error out).
+        recent_scale: factor of the model terms (the second calibration) [1], > 0.
 
     """
 
@@ -115,10 +124,17 @@ class ErrorModel:
     max_gap: float = 0.5
     rate_slip: float = 0.0
     slip_floor: float = 0.5
+    recent_weight: float = 0.0
+    recent_time_constant: float = 1.0
+    recent_scale: float = 1.0
 
     def __post_init__(self) -> None:
+        if isinstance(self.recent_weight, (int, float)) and self.recent_weight > 1.0:
+            raise ModelError(f"{NAMESPACE}.recent_weight must be in [0, 1], got "
+                             f"{self.recent_weight!r}")
         for name, value in asdict(self).items():
-            positive = name in ("time_constant", "stick_speed", "max_gap", "slip_floor")
+            positive = name in ("time_constant", "stick_speed", "max_gap", "slip_floor",
+                                "recent_scale")
             if not (isinstance(value, (int, float)) and math.isfinite(value)
                     and (value > 0 if positive else value >= 0)):
                 need = "> 0" if positive else ">= 0"
@@ -216,9 +232,25 @@ class TorqueStd:
         """Start with an empty filter."""
         self.model = model
         self._filter = _RateFilter(model)
+        self._recent = _RecentError(model)
 
-    def update(self, t: float, modelled: float, slip: float) -> float:
-        """Return the std of one estimate (``t`` [s], torque [N m], slip [rad/s])."""
+    def update(self, t: float, modelled: float, slip: float,
+               measured: float = math.nan) -> float:
+        """Return the std of one estimate (``t`` [s], torques [N m], slip [rad/s]).
+
+        ``measured`` (NaN: none) counts for the recent error of the *next* samples only.
+        """
+        sigma = self.static(t, modelled, slip)
+        if math.isnan(sigma):
+            return math.nan
+        m = self.model
+        gain = m.recent_scale ** 2 * (1.0 - m.recent_weight + m.recent_weight * self._recent.at(t))
+        std = math.sqrt(m.noise ** 2 + gain * max(sigma * sigma - m.noise ** 2, 0.0))
+        self._recent.update(t, (measured - modelled) / sigma if sigma > 0.0 else math.nan)
+        return std
+
+    def static(self, t: float, modelled: float, slip: float) -> float:
+        """Feed one sample; return ``sigma`` (the terms in quadrature, no recent error)."""
         rate = self._filter.update(t, modelled)
         if math.isnan(rate):
             return math.nan
@@ -227,12 +259,42 @@ class TorqueStd:
         return _sigma(self.model, abs(modelled), rate, stick, _lag(self.model, rate, speed))
 
 
+class _RecentError:
+    """The low-pass ``E`` of the squared standardised residual (module docstring)."""
+
+    def __init__(self, model: ErrorModel):
+        self.model = model
+        self.t = math.nan
+        self.value = 1.0
+
+    def at(self, t: float) -> float:
+        """Return ``E`` for a sample at ``t`` [s]: the prior 1 after a gap above ``max_gap``."""
+        dt = t - self.t
+        return self.value if not math.isfinite(self.t) or 0.0 <= dt <= self.model.max_gap \
+            else 1.0
+
+    def update(self, t: float, z: float) -> None:
+        if not math.isfinite(z):
+            return  # no measurement: E holds
+        dt = t - self.t
+        if not (math.isfinite(dt) and 0.0 < dt <= self.model.max_gap):
+            self.value = 1.0  # first sample, a gap or a step back: the prior
+            dt = 0.0
+        tc = self.model.recent_time_constant
+        self.value += (dt / (tc + dt) if tc > 0.0 else 1.0) * (z * z - self.value)
+        self.t = t
+
+
 def torque_std(model: ErrorModel, t: np.ndarray, modelled: np.ndarray,
-               slip: np.ndarray) -> np.ndarray:
-    """Return ``modelled_torque_std`` [N m] of every sample, exactly as :class:`TorqueStd`."""
+               slip: np.ndarray, measured: np.ndarray | None = None) -> np.ndarray:
+    """Return ``modelled_torque_std`` [N m] of every sample, exactly as :class:`TorqueStd`.
+
+    ``measured`` [N m] (NaN where absent; None: no torque sensor) feeds the recent error.
+    """
     est = TorqueStd(model)
-    return np.array([est.update(float(a), float(b), float(c))
-                     for a, b, c in zip(t, modelled, slip)], dtype=float)
+    meas = np.full(len(t), np.nan) if measured is None else np.asarray(measured, dtype=float)
+    return np.array([est.update(float(a), float(b), float(c), float(d))
+                     for a, b, c, d in zip(t, modelled, slip, meas)], dtype=float)
 
 
 def fit_error_model(t: np.ndarray, modelled: np.ndarray, measured: np.ndarray,
@@ -257,9 +319,42 @@ def fit_error_model(t: np.ndarray, modelled: np.ndarray, measured: np.ndarray,
     ratio = np.abs(resid) / Z95
     k = _calibration(ratio, noise ** 2, terms)
     coef = coef * k
-    return replace(base, noise=noise, base=float(coef[0]), rel=float(coef[1]),
-                   rate_time=float(coef[2]), stick_rel=float(coef[3]),
-                   rate_slip=float(coef[4]))
+    model = replace(base, noise=noise, base=float(coef[0]), rel=float(coef[1]),
+                    rate_time=float(coef[2]), stick_rel=float(coef[3]),
+                    rate_slip=float(coef[4]), recent_weight=0.0, recent_scale=1.0)
+    if base.recent_time_constant > 0.0:
+        model = _fit_recent(model, t, modelled, measured, slip)
+    return model
+
+
+def _fit_recent(model: ErrorModel, t: np.ndarray, modelled: np.ndarray, measured: np.ndarray,
+                slip: np.ndarray) -> ErrorModel:
+    """Fit ``recent_weight`` (ML) and ``recent_scale`` (95 %) under the fitted ``sigma``."""
+    from scipy.optimize import minimize_scalar  # loaded by fits only, as _max_likelihood
+
+    est = TorqueStd(model)
+    n = len(t)
+    sigma, recent = np.full(n, np.nan), np.full(n, np.nan)
+    resid = np.asarray(measured, dtype=float) - np.asarray(modelled, dtype=float)
+    for i in range(n):  # the node's loop: E before this sample's residual
+        sigma[i] = est.static(float(t[i]), float(modelled[i]), float(slip[i]))
+        recent[i] = est._recent.at(float(t[i]))
+        if sigma[i] > 0.0:
+            est._recent.update(float(t[i]), float(resid[i] / sigma[i]))
+    ok = np.isfinite(resid) & np.isfinite(sigma) & (sigma > 0.0)
+    r2, e = resid[ok] ** 2, recent[ok]
+    noise2 = model.noise ** 2
+    terms = np.maximum(sigma[ok] ** 2 - noise2, 0.0)  # the model terms' variance
+
+    def nll(w: float) -> float:
+        v = noise2 + (1.0 - w + w * e) * terms + 1e-300
+        return float(np.sum(0.5 * np.log(v) + 0.5 * r2 / v))
+
+    w = float(minimize_scalar(nll, bounds=(0.0, 1.0), method="bounded",
+                              options={"xatol": 1e-9}).x)
+    scale = _calibration(np.sqrt(r2) / Z95, noise2, (1.0 - w + w * e) * terms)
+    scale = scale or 1.0  # 0: the noise alone holds 95 % (nothing to scale)
+    return replace(model, recent_weight=min(max(w, 0.0), 1.0), recent_scale=scale)
 
 
 def sensor_noise(torque: np.ndarray, resid: np.ndarray) -> float:
@@ -351,6 +446,23 @@ def phases(t: np.ndarray, pressure: np.ndarray, slip: np.ndarray) -> np.ndarray:
             last = t[i]
         out[i] = t[i] - last <= TRANSIENT_WINDOW
     return out
+
+
+def negative_log_likelihood(measured: np.ndarray, modelled: np.ndarray,
+                            std: np.ndarray) -> float:
+    """Mean Gaussian negative log-likelihood [nats per sample] of the residuals under ``std``.
+
+    ``log(std) + r^2 / (2 std^2) + log(2 pi) / 2`` averaged over the samples with a finite
+    residual and a finite std > 0 (NaN when there is none): a held-out score of an error model
+    that rewards a band as narrow as the errors allow, not just its coverage.
+    """
+    resid = np.asarray(measured, dtype=float) - np.asarray(modelled, dtype=float)
+    std = np.asarray(std, dtype=float)
+    ok = np.isfinite(resid) & np.isfinite(std) & (std > 0.0)
+    if not ok.any():
+        return math.nan
+    r, s = resid[ok], std[ok]
+    return float(np.mean(np.log(s) + 0.5 * (r / s) ** 2) + 0.5 * math.log(2.0 * math.pi))
 
 
 def coverage(measured: np.ndarray, modelled: np.ndarray, std: np.ndarray,

@@ -178,7 +178,8 @@ class EstimatorNode(Node):
             self._skip("non_finite_output", "model produced a non-finite torque")
             return
         self._accepted += 1
-        std = self._torque_std.update(stamp, est.modelled_torque, est.slip_speed_filtered)
+        std = self._torque_std.update(stamp, est.modelled_torque, est.slip_speed_filtered,
+                                      measured)
         if self._until_publish:  # decimated (estimator.publish_every): not this one
             self._until_publish -= 1
             return

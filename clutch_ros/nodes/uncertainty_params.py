@@ -36,6 +36,14 @@ UNCERTAINTY_PARAMS = [
               0.0, 1e3, read_only=True),
     ParamSpec("uncertainty.slip_floor", _D.slip_floor, "|filtered slip speed| from which "
               "the clutch slips for the rate_slip term", "rad/s", 1e-3, 100.0, read_only=True),
+    ParamSpec("uncertainty.recent_weight", _D.recent_weight, "weight of the recent measured "
+              "error (low-pass of the squared standardised residual) in modelled_torque_std; "
+              "0: the band ignores the torque sensor", "1", 0.0, 1.0, read_only=True),
+    ParamSpec("uncertainty.recent_time_constant", _D.recent_time_constant, "low-pass time "
+              "constant of the recent measured error", "s", 0.0, 100.0, read_only=True),
+    ParamSpec("uncertainty.recent_scale", _D.recent_scale, "factor of the model terms of "
+              "modelled_torque_std (its calibration with the recent error)", "1", 1e-6, 1e3,
+              read_only=True),
 ]
 
 

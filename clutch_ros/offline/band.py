@@ -10,6 +10,10 @@ per run) and identifies the error model on those residuals
 writes beside ``uncertainty.*``, so the node publishes the band of the estimate it was
 identified on.
 
+:func:`cross_validate_band` scores a choice of the error model (its form, its settings, the
+fitting runs themselves) on the fitting runs only: each run held out in turn, the model fitted
+on the others. Choices are made on it, never on the runs the band is evaluated on.
+
 Modes: ``fixed`` (no adaptation: ``adapt.enabled`` false), ``adapted`` (the friction scale:
 the node's default), ``adapted_gain`` (the friction scale and the spline gain:
 ``adapt.spline_gain``).
@@ -23,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from clutch_ros.errors import ConfigError
+from clutch_ros.model import uncertainty as unc
 from clutch_ros.model.adaptation import AdaptationSettings
 from clutch_ros.model.uncertainty import DEFAULTS, ErrorModel
 from clutch_ros.offline.adapt import adaptive_replay
@@ -34,8 +39,8 @@ from clutch_ros.offline.replay import (
     stamps_s,
 )
 
-__all__ = ["BAND_MODES", "band_extra", "band_mode", "band_settings", "fit_band",
-           "replay_series"]
+__all__ = ["BAND_MODES", "band_extra", "band_mode", "band_settings", "cross_validate_band",
+           "fit_band", "replay_series", "score_band"]
 
 #: How the estimate the band belongs to is computed (module docstring); the first: default.
 BAND_MODES = ("adapted", "adapted_gain", "fixed")
@@ -103,8 +108,46 @@ def fit_band(bags: Any, params: Any, mode: str = BAND_MODES[0],
     """
     if band_settings(mode) is None:
         return fit_error_model_on_bags(bags, params, base)
-    parts = []
-    for bag in bags:
-        s = replay_series(bag, params, mode)
-        parts.append((s["t"], s["modelled"], s["measured"], s["slip"]))
-    return fit_error_model_on_series(parts, base)
+    return fit_error_model_on_series(
+        [_part(replay_series(bag, params, mode)) for bag in bags], base)
+
+
+def _part(series: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+    return series["t"], series["modelled"], series["measured"], series["slip"]
+
+
+def score_band(model: ErrorModel, series: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Return the band's coverage and mean negative log-likelihood on one run.
+
+    ``series`` is one :func:`replay_series`; the result is
+    :func:`~clutch_ros.model.uncertainty.coverage`'s dict and ``nll`` [nats per sample].
+    """
+    t, modelled, slip = series["t"], series["modelled"], series["slip"]
+    std = unc.torque_std(model, t, modelled, slip, series["measured"])
+    out = unc.coverage(series["measured"], modelled, std, unc.phases(t, series["pressure"], slip))
+    out["nll"] = unc.negative_log_likelihood(series["measured"], modelled, std)
+    return out
+
+
+def cross_validate_band(bags: Any, params: Any, mode: str = BAND_MODES[0],
+                        base: ErrorModel = DEFAULTS) -> list[dict[str, Any]]:
+    """Leave one fitting run out: per bag, :func:`score_band` of the model fitted on the others.
+
+    Every bag is replayed once as the node runs ``mode`` (a fresh estimator per bag, as
+    :func:`fit_band`); the error model of each held-out bag is fitted on the other bags'
+    series. Returns one dict per bag: ``run`` (the bag's name) and the scores.
+
+    Raises:
+        ConfigError: fewer than two bags (nothing to hold out).
+
+    """
+    bags = list(bags)
+    if len(bags) < 2:
+        raise ConfigError(f"cross-validation needs at least two fitting runs, got {len(bags)}")
+    series = [replay_series(bag, params, mode) for bag in bags]
+    rows = []
+    for i, bag in enumerate(bags):
+        model = fit_error_model_on_series(
+            [_part(s) for j, s in enumerate(series) if j != i], base)
+        rows.append({"run": Path(bag).name, **score_band(model, series[i])})
+    return rows

@@ -172,7 +172,7 @@ def replay_bag(
         estimate_s=estimate_s,
     )
     std = torque_std(error_model or DEFAULTS, stamps_s(rig), batch.modelled_torque,
-                     batch.slip_speed_filtered)
+                     batch.slip_speed_filtered, batch.measured_torque)
     summary.update(uncertainty_summary(rig, batch, std))
     return ReplayResult(path, rig, batch, summary, params, std)
 

@@ -20,6 +20,7 @@ from clutch_ros.config.params_file import load_flat, load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model.params import PARAMETER_SPECS, ClutchParams
 from clutch_ros.model.uncertainty import DEFAULTS, ErrorModel
+from clutch_ros.offline.band import fit_band
 from clutch_ros.rig import RigPlant, run_offline, table3_run, table4_run
 
 START_NS = 1_700_000_000 * 1_000_000_000
@@ -338,3 +339,24 @@ def test_auto_fit_prints_the_validation_table(tmp_path, capsys):
         assert max(ratios.values()) <= 1.0, (law, ratios)
     best = lines[head + 5].split()[1]
     assert best in rows and load_params(tmp_path / "best.yaml").drivetrain.stiffness > 0.0
+
+
+def test_band_bags_widen_the_error_models_fitting_set_only(bags, tmp_path, capsys):
+    """--band-bags: the error model is fitted on the fit bags and these; the law on the former."""
+    plain, wide = tmp_path / "plain.yaml", tmp_path / "wide.yaml"
+    argv = [bags["inc_step"], "--law", "coulomb", "--band", "fixed", "--json"]
+    rc, out, err = _run(fit_cmd, [*argv, "-o", plain], capsys)
+    assert rc == 0, err
+    rc, out, err = _run(fit_cmd, [*argv, "-o", wide, "--band-bags", bags["ramp4"]], capsys)
+    assert rc == 0, err
+    doc = json.loads(out)
+    assert doc["band_bags"] == [str(bags["inc_step"]), str(bags["ramp4"])]
+    assert "also fitted on " + str(bags["ramp4"]) in wide.read_text()
+    # the estimator's parameters are those of the fit bags alone (the same fit, bit for bit)
+    assert load_params(wide) == load_params(plain)
+    # the error model is the one fitted on both runs, as clutch_ros.offline.band does it
+    expected = fit_band([bags["inc_step"], bags["ramp4"]], load_params(wide), "fixed")
+    got = ErrorModel.from_flat(load_flat(wide))
+    np.testing.assert_allclose(list(got.to_flat().values()), list(expected.to_flat().values()),
+                               rtol=1e-12)  # the same deterministic fit; the YAML round trip
+    assert got != ErrorModel.from_flat(load_flat(plain))  # the ramp run moved it

@@ -14,6 +14,7 @@ from clutch_ros.model.uncertainty import (
     coverage,
     features,
     fit_error_model,
+    negative_log_likelihood,
     phases,
     torque_std,
 )
@@ -203,3 +204,89 @@ def test_a_transient_error_of_fixed_twist_is_identified_and_holds_at_other_slip_
         wrong[speed] = coverage(measured, modelled, torque_std(fixed_time, t, modelled, slip),
                                 transient)["coverage_95_transient"]
     assert wrong[3.0] > cov["coverage_95_transient"] + 0.02 and wrong[1.0] < 0.9, wrong
+
+
+def test_the_negative_log_likelihood_is_the_gaussian_one_over_usable_samples():
+    measured = np.array([1.0, 3.0, np.nan, 5.0, 2.0])
+    modelled = np.array([0.0, 1.0, 0.0, np.nan, 2.0])
+    std = np.array([1.0, 2.0, 1.0, 1.0, np.nan])
+    # samples 0 and 1 only (NaN residual or std elsewhere): r/s = 1 and 1, log s = 0 and log 2
+    expected = 0.5 * (0.0 + 0.5 + math.log(2.0) + 0.5) + 0.5 * math.log(2.0 * math.pi)
+    np.testing.assert_allclose(negative_log_likelihood(measured, modelled, std), expected,
+                               rtol=1e-15)  # the same arithmetic: rounding only
+    assert math.isnan(negative_log_likelihood(measured[2:3], modelled[2:3], std[2:3]))
+    # the true std scores best: a band twice or half as wide is worse on the same residuals
+    rng = np.random.default_rng(3)
+    r = rng.normal(0.0, 4.0, 20000)
+    scores = [negative_log_likelihood(r, np.zeros_like(r), np.full_like(r, s))
+              for s in (2.0, 4.0, 8.0)]
+    assert scores[1] < min(scores[0], scores[2])
+    # its value at the true std: log 4 + 1/2 + log(2 pi)/2, to the sampling error of mean(z^2)
+    np.testing.assert_allclose(scores[1], math.log(4.0) + 0.5 + 0.5 * math.log(2 * math.pi),
+                               atol=0.02)  # 0.5 * std(z^2)/sqrt(n) = 0.005: 4 sigma
+
+
+def test_the_recent_error_scales_the_band_in_closed_form():
+    """The band of sigma = base = 2 N m, a residual of 4 N m (z^2 = 4), dt = tc = 0.1 s."""
+    model = ErrorModel(noise=0.0, base=2.0, rel=0.0, rate_time=0.0, stick_rel=0.0,
+                       rate_slip=0.0, recent_weight=0.5, recent_time_constant=0.1,
+                       recent_scale=1.5)
+    n = 8
+    t = np.arange(n) * 0.1
+    modelled = np.full(n, 100.0)
+    std = torque_std(model, t, modelled, np.ones(n), modelled + 4.0)
+    # E starts at the prior 1 (the first residual only anchors the filter's time), then moves
+    # half way to z^2 = 4 per sample (dt / (tc + dt) = 0.5); sample k sees the residuals
+    # before it: E_k = 4 - 3 * 0.5^(k - 1) from k = 2
+    e = np.array([1.0, 1.0] + [4.0 - 3.0 * 0.5 ** (k - 1) for k in range(2, n)])
+    np.testing.assert_allclose(std, 1.5 * 2.0 * np.sqrt(0.5 + 0.5 * e), rtol=1e-14)
+    # no measurement: E holds; a gap above max_gap (0.5 s): back to the prior
+    live = TorqueStd(model)
+    for i in range(n):
+        live.update(t[i], 100.0, 1.0, 104.0)
+    held = live.update(t[-1] + 0.1, 100.0, 1.0)
+    np.testing.assert_allclose(held, 3.0 * np.sqrt(0.5 + 0.5 * (4.0 - 3.0 * 0.5 ** (n - 1))),
+                               rtol=1e-14)  # E after the last measured sample (k = n)
+    live.update(t[-1] + 0.2, 100.0, 1.0, 104.0)
+    after_gap = live.update(t[-1] + 1.0, 100.0, 1.0, 104.0)
+    np.testing.assert_allclose(after_gap, 1.5 * 2.0, rtol=1e-14)  # E = 1 after the restart
+    # without a sensor the band is recent_scale * sigma throughout
+    np.testing.assert_allclose(torque_std(model, t, modelled, np.ones(n)), 3.0, rtol=1e-14)
+    # the sensor's noise is not scaled: sigma^2 = 1 + 2^2, the model terms' 4 times 1.5^2
+    noisy = ErrorModel(noise=1.0, base=2.0, rel=0.0, rate_time=0.0, stick_rel=0.0,
+                       rate_slip=0.0, recent_weight=0.5, recent_time_constant=0.1,
+                       recent_scale=1.5)
+    np.testing.assert_allclose(torque_std(noisy, t, modelled, np.ones(n)), math.sqrt(10.0),
+                               rtol=1e-14)
+    with pytest.raises(ModelError, match="recent_weight must be in"):
+        ErrorModel(recent_weight=1.5)
+
+
+def _offset_run(seed, n=20000, dt=0.01):
+    """Return a run whose error is a held offset: a new level every 2 s, noise around it."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    modelled = np.full(n, 500.0)
+    offset = np.repeat(rng.normal(0.0, 10.0, n // 200 + 1), 200)[:n]
+    measured = modelled + offset + rng.normal(0.0, 1.0, n)
+    return t, modelled, measured, np.ones(n)
+
+
+def test_a_held_offset_is_learnt_by_the_recent_error_and_left_out_at_time_constant_zero():
+    t, modelled, measured, slip = _offset_run(1)
+    model = fit_error_model(t, modelled, measured, slip)
+    off = fit_error_model(t, modelled, measured, slip,
+                          ErrorModel(recent_time_constant=0.0))
+    assert off.recent_weight == 0.0 and off.recent_scale == 1.0
+    assert model.recent_weight > 0.9, model  # the held offset: the recent error predicts it
+    # the static part is the same fit with or without the recent error
+    assert (model.base, model.rel, model.noise) == (off.base, off.rel, off.noise)
+    # on another run: 95 % inside with either band, but the recent one is the narrower
+    # where the offset is small (the likelihood rewards that)
+    t2, m2, y2, s2 = _offset_run(2)
+    with_recent = torque_std(model, t2, m2, s2, y2)
+    static = torque_std(off, t2, m2, s2, y2)
+    inside = np.mean(np.abs(y2 - m2) <= Z95 * with_recent)
+    assert 0.93 <= inside <= 0.97, inside  # 10,000 independent-ish samples: +-2 points
+    small = np.abs(y2 - m2) < 5.0
+    assert np.median(with_recent[small]) < 0.5 * np.median(static[small])

@@ -62,7 +62,7 @@ def _live(params, bag):
             if not math.isfinite(res.estimate.modelled_torque):
                 continue
             std = torque_std.update(stamp_to_sec(header.stamp), res.estimate.modelled_torque,
-                                    res.estimate.slip_speed_filtered)
+                                    res.estimate.slip_speed_filtered, measured)
             filled = out.fill(res.estimate, res.adaptation, header, std)
             stamps.append(interfaces.stamp_to_ns(header.stamp.sec, header.stamp.nanosec))
             for name, values in rows.items():

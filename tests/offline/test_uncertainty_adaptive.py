@@ -51,7 +51,7 @@ def fitted():
 
 
 def _coverage(model, t, modelled, measured, batch):
-    std = unc.torque_std(model, t, modelled, batch.slip_speed_filtered)
+    std = unc.torque_std(model, t, modelled, batch.slip_speed_filtered, measured)
     transient = unc.phases(t, batch.actuating_pressure, batch.slip_speed_filtered)
     return unc.coverage(measured, modelled, std, transient)
 

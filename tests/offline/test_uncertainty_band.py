@@ -24,8 +24,10 @@ from clutch_ros.offline.band import (
     band_extra,
     band_mode,
     band_settings,
+    cross_validate_band,
     fit_band,
     replay_series,
+    score_band,
 )
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -42,7 +44,7 @@ def fitted():
 
 def _band(model, series):
     t, modelled, slip = series["t"], series["modelled"], series["slip"]
-    std = unc.torque_std(model, t, modelled, slip)
+    std = unc.torque_std(model, t, modelled, slip, series["measured"])  # as the node does
     transient = unc.phases(t, series["pressure"], slip)
     return std, transient, unc.coverage(series["measured"], modelled, std, transient)
 
@@ -107,3 +109,28 @@ def test_the_stuck_clutch_transients_are_not_given_the_slipping_lag(fitted):
     _, _, cov = _band(model, s)
     assert cov["coverage_transient_samples"] > 100, cov
     assert 0.85 <= cov["coverage_95_transient"] <= 0.99, cov
+
+
+def test_cross_validation_scores_each_fitting_run_with_the_model_of_the_others(fitted):
+    """Choices are made on the fitting runs only: each held out, the band fitted on the rest."""
+    params, _ = fitted
+    bags = [GOLDEN / name for name in FIT]
+    rows = cross_validate_band(bags, params, "adapted_gain")
+    assert [r["run"] for r in rows] == list(FIT)
+    for held_out, row in zip(FIT, rows):
+        (other,) = [GOLDEN / name for name in FIT if name != held_out]
+        series = replay_series(GOLDEN / held_out, params, "adapted_gain")
+        expected = score_band(fit_band([other], params, "adapted_gain"), series)
+        assert row.keys() == {"run", *expected}
+        np.testing.assert_allclose([row[k] for k in expected], list(expected.values()),
+                                   rtol=1e-12)  # the same fit and replay: deterministic
+        # the score is the Gaussian one of the band's std on the held-out run
+        std = unc.torque_std(fit_band([other], params, "adapted_gain"), series["t"],
+                             series["modelled"], series["slip"], series["measured"])
+        ok = np.isfinite(series["measured"] - series["modelled"]) & np.isfinite(std)
+        z = (series["measured"] - series["modelled"])[ok] / std[ok]
+        nll = np.mean(np.log(std[ok]) + 0.5 * z ** 2) + 0.5 * np.log(2 * np.pi)
+        np.testing.assert_allclose(row["nll"], nll, rtol=1e-12)  # summation order only
+        assert row["coverage_samples"] == int(ok.sum())
+    with pytest.raises(ConfigError, match="at least two fitting runs, got 1"):
+        cross_validate_band(bags[:1], params, "adapted_gain")

@@ -63,7 +63,7 @@ def test_the_node_publishes_the_band_of_its_adapted_estimate(band_file, ros_env)
     from clutch_ros.offline.band import replay_series
 
     params, model, path = band_file
-    assert model.rate_slip > 0.0
+    assert model.rate_slip > 0.0 and model.recent_weight > 0.0  # both live terms exercised
     messages = list(_messages(RUN))
     with node_process("estimator", ros_env, "--params-file", str(path),
                       "-p", "estimator.max_sample_age:=0.0") as proc, Harness() as h:
@@ -77,7 +77,8 @@ def test_the_node_publishes_the_band_of_its_adapted_estimate(band_file, ros_env)
         assert proc.poll() is None, "estimator died"
 
     offline = replay_series(RUN, params, "adapted_gain")
-    std = unc.torque_std(model, offline["t"], offline["modelled"], offline["slip"])
+    std = unc.torque_std(model, offline["t"], offline["modelled"], offline["slip"],
+                         offline["measured"])  # the node feeds the sensor's torque too
     by_ns = {stamp_to_ns(m.header.stamp.sec, m.header.stamp.nanosec): i
              for i, m in enumerate(messages)}
     rows = [by_ns[stamp_to_ns(e.header.stamp.sec, e.header.stamp.nanosec)] for e in estimates]
