@@ -221,6 +221,20 @@ class PumpCommandGate:
         limited. The frame is returned at once when the target changed and no immediate frame
         went out since the last :meth:`tick`; otherwise None (the next tick sends it).
         """
+        now = self.admit(pressure, stamp)
+        if now is None or self._immediate_used \
+                or self._sent == (self._target, self._target_reason):
+            return None
+        self._immediate_used = True
+        self.immediate_frames += 1
+        return self._output(now)
+
+    def admit(self, pressure: float, stamp: float | None = None) -> float | None:
+        """:meth:`submit` without the immediate frame: the next :meth:`tick` sends the target.
+
+        For a sender that takes its commands at each PumpRequest cycle, just before the
+        tick. Returns the clock time [s] of the admission, or None when refused (counted).
+        """
         refusal = self._admission(stamp)
         if refusal is not None:
             self.refuse(*refusal)
@@ -252,11 +266,7 @@ class PumpCommandGate:
             )
         else:
             self._set_target(value, "", fail_safe=False)
-        if self._immediate_used or self._sent == (self._target, self._target_reason):
-            return None
-        self._immediate_used = True
-        self.immediate_frames += 1
-        return self._output(now)
+        return now
 
     def _admission(self, stamp: float | None) -> tuple[str, str] | None:
         """Return ``(reason, text)`` when a command stamped ``stamp`` [s] is refused."""

@@ -35,11 +35,14 @@ Send: ``pressure_command`` goes through :class:`clutch_ros.canbus.PumpCommandGat
 ``pump.max_pressure``, rate limit, 0 bar after ``pump.watchdog_timeout`` without an admitted
 command; stale, future, out-of-order, unstamped commands, commands from a node other than
 ``pump.command_source`` and commands while inactive are refused and counted). The
-PumpRequest (rolling counter + CRC-8) goes out every ``pump.period`` plus at most one
-immediate frame per period; what was applied and why is published on ``pump_request``
-(:mod:`clutch_ros.nodes.can_bridge_send`). The cycle (``pump.period``, with the watchdog) and
-the ``bridge.rate`` flush run on a thread of their own (:mod:`clutch_ros.nodes.cycle`:
-an executor wake-up per call cost more CPU than the work; ROS timers with ``use_sim_time``).
+PumpRequest (rolling counter + CRC-8) goes out every ``pump.period``, carrying the newest
+command taken at that cycle (a command waits at most one period); what was applied and why
+is published on ``pump_request`` (:mod:`clutch_ros.nodes.can_bridge_send`). The cycle
+(``pump.period``: commands, the frame, the watchdog) and the ``bridge.rate`` flush run on a
+thread of their own from configure to cleanup (:mod:`clutch_ros.nodes.cycle`: an executor
+wake-up per call or command cost more CPU than the work). With ``use_sim_time`` they are ROS
+timers while active, commands are executor callbacks, and each admitted command is answered
+by a frame at once (lock-step).
 SIGINT/SIGTERM while active send a last 0 bar PumpRequest; a killed bridge sends nothing, and
 the pump ECU goes to 0 bar on its own request timeout (100 ms, ``params/rig.dbc``).
 
@@ -83,7 +86,7 @@ from clutch_ros.canbus.batch import RawFrame, frame_message
 from clutch_ros.canbus.counters import PublishPacer
 from clutch_ros.canbus.signal_map import SignalMap
 from clutch_ros.errors import ClutchError
-from clutch_ros.interfaces import CAN_FRAMES, PRESSURE_COMMAND, PUMP_REQUEST, RIG_STATE
+from clutch_ros.interfaces import CAN_FRAMES, PUMP_REQUEST, RIG_STATE
 from clutch_ros.nodes.can_bridge_params import (
     GATE_PARAMS,
     LIVE,
@@ -102,7 +105,7 @@ from clutch_ros.nodes.cycle import Cycle
 from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.lockstep import time_of_frame
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM
-from clutch_ros.nodes.qos import publisher_qos, sensor_qos
+from clutch_ros.nodes.qos import publisher_qos
 from clutch_ros.nodes.renamed_params import declare_with_renames
 from clutch_ros.nodes.runner import run_node
 
@@ -131,7 +134,7 @@ class CanBridgeNode(LifecycleNode):
         self._rig_pub = self._raw_pub = self._rx = None
         self._rig_encode = RigStateEncoder().encode  # rig_state written as CDR bytes
         self._rx_stop = threading.Event()
-        self._sub = self._pump_timer = self._flush_timer = None
+        self._pump_timer = self._flush_timer = None
         #: the bridge's components, counters and lifecycle state, read by its diagnostics
         self.state = BridgeState(CommandSources(self, cfg["pump.command_source"]))
         self._pump = PumpSender(self, self.state, self._saw_stamp)  # the send side
@@ -174,9 +177,14 @@ class CanBridgeNode(LifecycleNode):
                                             name="can_rx", daemon=True)
                 self._rx.start()
                 self.get_logger().info(f"CAN {config.describe()} open; decoding with {db.path}")
-                self._sub = self.create_subscription(PressureCommand, PRESSURE_COMMAND.name,
-                                                     self._on_command, sensor_qos(), raw=True)
-                st.sources.topic = self._sub.topic_name
+                st.sources.topic = self._pump.subscribe(polled=not self._sim_time)
+                if not self._sim_time:  # (frames and rig_state only while active)
+                    pacer = st.pacer
+                    self._cycle = Cycle("can_cycle", {
+                        "pump": (cfg["pump.period"], self._pump.cycle),
+                        "flush": (self._flush_period(),
+                                  lambda: self._publish_latest(pacer.flush))},
+                        self._on_cycle_error).start()
         except (ClutchError, ValueError) as err:
             self._failure = err
             self.get_logger().error(f"configure failed: {err}")
@@ -201,21 +209,14 @@ class CanBridgeNode(LifecycleNode):
             st.stop.clear()
             st.log_thread = threading.Thread(target=self._replay, name="can_log", daemon=True)
             st.log_thread.start()
-        else:
-            # configured: these stay the same objects until cleanup (the cycle and the
-            # timers end at deactivate)
+        elif self._sim_time:  # on the node's (simulated) clock: ROS timers, until deactivate
+            # (on the wall clock the cycle runs from configure: see can_bridge_send)
             pacer = st.pacer
-            assert st.gate is not None and pacer is not None
-            jobs = {"pump": (self._cfg["pump.period"], self._pump.tick),
-                    "flush": (self._flush_period(), lambda: self._publish_latest(pacer.flush))}
-            if self._sim_time:  # on the node's (simulated) clock: ROS timers
-                self._pump_timer, self._flush_timer = (
-                    self.create_timer(period, job) for period, job in jobs.values())
-            else:
-                self._cycle = Cycle("can_cycle", jobs, self._on_cycle_error)
+            assert st.gate is not None and pacer is not None  # configured
+            self._pump_timer = self.create_timer(self._cfg["pump.period"], self._pump.tick)
+            self._flush_timer = self.create_timer(
+                self._flush_period(), lambda: self._publish_latest(pacer.flush))
         st.active, st.lifecycle = True, "active"
-        if self._cycle is not None:
-            self._cycle.start()
         return result
 
     def on_deactivate(self, state) -> TransitionCallbackReturn:
@@ -230,9 +231,8 @@ class CanBridgeNode(LifecycleNode):
         for pub in (self._rig_pub, self._pump.publisher, self._raw_pub):
             if pub is not None:
                 self.destroy_lifecycle_publisher(pub)
-        if self._sub is not None:
-            self.destroy_subscription(self._sub)
-        self._sub = self._rig_pub = self._pump.publisher = self._raw_pub = None
+        self._pump.unsubscribe()
+        self._rig_pub = self._pump.publisher = self._raw_pub = None
         self.state.clear()
         self.state.lifecycle = "unconfigured"
         return super().on_cleanup(state)
@@ -250,9 +250,8 @@ class CanBridgeNode(LifecycleNode):
         # "active" check has ended when this returns, so none follows the transition
         with self._lock:
             was_active, st.active = st.active, False
-        if self._cycle is not None:  # ended: no cycle frame after the last one below
-            self._cycle.stop()
-            self._cycle = None
+        # the cycle (configure..cleanup) sends no frame once inactive: PumpSender.tick checks
+        # under the lock zero() sends with, so the 0 bar frame below is the last one
         for timer in (self._pump_timer, self._flush_timer):
             if timer is not None:
                 timer.cancel()
@@ -266,6 +265,9 @@ class CanBridgeNode(LifecycleNode):
 
     def _close_bus(self) -> None:
         st = self.state
+        if self._cycle is not None:  # ended: no job after it, before the bus closes
+            self._cycle.stop()
+            self._cycle = None
         self._rx_stop.set()
         if self._rx is not None:
             self._rx.join(timeout=2.0)
@@ -486,9 +488,6 @@ class CanBridgeNode(LifecycleNode):
         return True
 
     # -- send (can_bridge_send) ----------------------------------------------------------
-    def _on_command(self, msg, info) -> None:
-        self._pump.on_command(msg, info)
-
     def _saw_stamp(self, stamp: float) -> None:
         if self._sim_time and stamp > self._time_floor:  # (see _node_time)
             self._time_floor = stamp

@@ -10,11 +10,20 @@ Each call takes the lock for the gate's decision, the frame's send and its repor
 so frames leave in the order the gate made them (the rolling counter advances by one on the
 bus) and a report names the frame it follows.
 
+Where commands come from (:meth:`PumpSender.subscribe`): on the wall clock the cycle thread
+takes them (:class:`~clutch_ros.nodes.polled.PolledSubscription`) at each PumpRequest cycle,
+just before the cycle's frame, which then carries the newest admitted target
+(:meth:`PumpSender.cycle`): a command waits at most one ``pump.period`` for its frame, as on a
+cyclic CAN message, and the executor no longer wakes ~100 times a second for commands (each
+wake-up ~0.3 ms of CPU, ``python -m benchmarks.wakeup_probe``). On simulated time they stay
+executor callbacks and every admitted command is answered by a frame at once (lock-step,
+:mod:`clutch_ros.nodes.lockstep`), its report carrying the command's stamp.
+
 Admission (before the gate's own checks): commands while the node is not active and from a
-publisher other than ``pump.command_source`` are refused and counted. On simulated time every
-admitted command is answered by a frame (lock-step, :mod:`clutch_ros.nodes.lockstep`) and
-its report carries the command's stamp. A frame that cannot be sent (link down) is logged at
-most every 5 s; the pump ECU's own request timeout then takes it to 0 bar.
+publisher other than ``pump.command_source`` are refused and counted (the cycle runs from
+configure to cleanup, so commands that arrive while inactive are taken and counted too). A
+frame that cannot be sent (link down) is logged at most every 5 s; the pump ECU's own request
+timeout then takes it to 0 bar.
 """
 
 from __future__ import annotations
@@ -28,10 +37,12 @@ from clutch_msgs.msg import PressureCommand
 
 from clutch_ros.canbus import CanError, PumpGateConfig
 from clutch_ros.errors import ClutchError
-from clutch_ros.interfaces import stamp_to_s
+from clutch_ros.interfaces import PRESSURE_COMMAND, stamp_to_s
 from clutch_ros.nodes.can_bridge_state import BridgeState
 from clutch_ros.nodes.convert import CdrCodec
 from clutch_ros.nodes.diagnostics import LogThrottle
+from clutch_ros.nodes.polled import PolledSubscription
+from clutch_ros.nodes.qos import sensor_qos
 
 __all__ = ["SEND_TIMEOUT", "PumpSender"]
 
@@ -67,9 +78,48 @@ class PumpSender:
         self.publisher: Any = None
         #: use_sim_time: every admitted command answered by a frame, reports keep its stamp
         self.sim_time = False
+        self._polled: PolledSubscription | None = None  # wall clock: taken by cycle()
+        self._subscription: Any = None  # simulated time: an executor callback
 
-    def on_command(self, raw: bytes, info) -> None:
-        """Admit a ``pressure_command`` (its CDR bytes; ``info``: its message info), send."""
+    def subscribe(self, polled: bool) -> str:
+        """Subscribe to ``pressure_command`` (configure); return its resolved topic name.
+
+        ``polled``: taken by :meth:`cycle` (the wall clock's cycle thread), else an executor
+        callback (:meth:`on_command`, simulated time).
+        """
+        name, qos = PRESSURE_COMMAND.name, sensor_qos()
+        if polled:
+            self._polled = PolledSubscription(self._node, PressureCommand, name, qos, raw=True)
+            return self._polled.topic_name
+        self._subscription = self._node.create_subscription(
+            PressureCommand, name, self.on_command, qos, raw=True)
+        return self._subscription.topic_name
+
+    def unsubscribe(self) -> None:
+        """Remove the subscription (cleanup; after the cycle stopped)."""
+        if self._polled is not None:
+            self._polled.destroy()
+        if self._subscription is not None:
+            self._node.destroy_subscription(self._subscription)
+        self._polled = self._subscription = None
+
+    def cycle(self) -> None:
+        """Admit the commands taken now, then send the frame: the PumpRequest cycle's job.
+
+        Runs from configure to cleanup; the frame only while active (:meth:`tick`).
+        """
+        polled = self._polled
+        if polled is not None:
+            for item in polled.take():
+                self.on_command(item.message, item.info, immediate=False)
+        self.tick()
+
+    def on_command(self, raw: bytes, info, immediate: bool = True) -> None:
+        """Admit a ``pressure_command`` (its CDR bytes; ``info``: its message info).
+
+        ``immediate``: a changed target is sent at once (the gate's immediate frame), else
+        by the next :meth:`tick`, which reports the command.
+        """
         msg = self._fields._make(self._decode(raw))
         st = self._state
         gate = st.gate
@@ -83,6 +133,10 @@ class PumpSender:
                 return
             stamp = stamp_to_s(msg.header_stamp_sec, msg.header_stamp_nanosec)
             self._on_stamp(stamp)
+            if not immediate:
+                if gate.admit(msg.pressure, stamp if stamp > 0.0 else None) is not None:
+                    self._command = msg  # reported with the next frame
+                return
             admitted = gate.commands
             out = gate.submit(msg.pressure, stamp if stamp > 0.0 else None)
             if out is None and self.sim_time and gate.commands != admitted:

@@ -42,11 +42,13 @@ class Taken(NamedTuple):
 
     ``message``: the message (bytes for a ``raw`` subscription); ``received``: the
     middleware's reception time [s] (system clock: ROS time without ``use_sim_time``), or None
-    when the middleware gives none.
+    when the middleware gives none; ``info``: the whole message info (rclpy's dict:
+    ``publisher_gid``, ``publication_sequence_number``, ...).
     """
 
     message: Any
     received: float | None
+    info: Any = None
 
 
 class PolledSubscription:
@@ -80,7 +82,7 @@ class PolledSubscription:
         with handle:
             while (item := handle.take_message(msg_type, raw)) is not None:
                 received = item[1].get("received_timestamp", 0)
-                out.append(Taken(item[0], received * 1e-9 if received > 0 else None))
+                out.append(Taken(item[0], received * 1e-9 if received > 0 else None, item[1]))
         self.taken += len(out)
         return out
 
