@@ -364,8 +364,9 @@ class ReconnectingBus(can.BusABC):
         for bad in errors:
             self._count_malformed(malformed_reason(bad) or "not_a_frame", bad)
         echo = self._echo
-        if echo is not None and echo.waiting:
-            frames = [f for f in frames if not echo.is_echo_of(
+        if echo is not None and echo.waiting:  # (only a sent identifier can be an echo)
+            ids = echo.pending_ids()
+            frames = [f for f in frames if f[1] not in ids or not echo.is_echo_of(
                 (f[1], f[2], f[3], f[4], f[5], f[7]), f[0])]
         self._poll_state(bus)
         return frames

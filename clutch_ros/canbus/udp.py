@@ -187,6 +187,11 @@ class EchoFilter:
         """True while a sent frame's echo is expected (else no frame can be an echo)."""
         return bool(self._pending)
 
+    def pending_ids(self) -> frozenset[int]:
+        """Return the identifiers of frames whose echo is expected (no other can be an echo)."""
+        with self._lock:
+            return frozenset(sig[0] for sig in self._pending)
+
     def _expire(self, stream_time: float | None) -> None:
         """Forget records sent over ``window`` before ``stream_time`` [s] and above capacity.
 

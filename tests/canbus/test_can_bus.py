@@ -301,8 +301,10 @@ def test_echo_filter_unit():
     a = can.Message(arbitration_id=0x80, data=b"\x01\x02")
     b = can.Message(arbitration_id=0x80, data=b"\x01\x03")
     assert not echo.is_echo(a)  # nothing sent yet
+    assert echo.pending_ids() == frozenset()
     echo.sent(a)
     echo.sent(a)
+    assert echo.pending_ids() == {0x80}  # recv_batch passes other identifiers unchecked
     # the timestamp is the receiver's: 0.5 s after the send it is still this frame's echo
     assert echo.is_echo(can.Message(arbitration_id=0x80, data=b"\x01\x02",
                                     timestamp=clock.t + 0.5))
