@@ -24,11 +24,11 @@ Printed per sample over the 1 kHz part, for each variant: CPU time (the thread's
 p99.9 and max [µs], wall-clock p99 [µs], the discretisation-cache misses (new dt entries) and
 their median cost, and the garbage collections that ran. Variants, interleaved ``--repeat``
 times: ``baseline``, the timer around a call that does nothing (the harness and the machine's
-own tail); ``closed``, the same path with every new dt discretised in closed form
-(``transition="auto"``, not yet the default: see model/pack.py); ``node``, the node's path as
-it is (``expm``). ``--gc freeze`` (the default, as the nodes run: nodes/runner.py) runs with
-everything allocated before the stream frozen (:func:`gc.freeze`), ``--gc default`` without,
-``--gc off`` with the collector disabled.
+own tail); ``expm``, the same path with every new dt discretised by ``scipy.linalg.expm``
+(``transition="expm"``, the default before the closed form: see model/pack.py); ``node``, the
+node's path as it is (closed form, ``transition="auto"``). ``--gc freeze`` (the default, as
+the nodes run: nodes/runner.py) runs with everything allocated before the stream frozen
+(:func:`gc.freeze`), ``--gc default`` without, ``--gc off`` with the collector disabled.
 """
 
 from __future__ import annotations
@@ -152,8 +152,8 @@ def _make(variant: str, params):
     if variant == "baseline":
         return lambda *args: None
     kwargs = {"max_gap_s": 1.0}
-    if variant == "closed":
-        kwargs["transition"] = "auto"
+    if variant == "expm":
+        kwargs["transition"] = "expm"
     try:
         return AdaptiveEstimator(params, AdaptationSettings(), **kwargs).update
     except TypeError:  # a tree from before the transition option: expm is its only path
@@ -207,7 +207,7 @@ def per_sample(args) -> int:
           f"{1.0 / args.dt:g} Hz, jitter {args.jitter * 1e6:g} us, hiccups {args.hiccup:g} "
           f"({keys.size} distinct dts at 10 us); {args.repeat} run(s) per variant, gc "
           f"{args.gc}")
-    variants = ("baseline", "closed", "node")
+    variants = ("baseline", "expm", "node")
     pooled: dict[str, dict] = {v: {"cpu": [], "wall": [], "missed": [], "gc": []}
                                for v in variants}
     stamps_l = stamps.tolist()
