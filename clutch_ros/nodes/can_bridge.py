@@ -15,9 +15,9 @@ queued at a wake-up as plain tuples (:meth:`~clutch_ros.canbus.ReconnectingBus.r
 on udp_multicast no python-can Message per frame) and decodes rig frames from tables
 compiled from the DBC (:mod:`clutch_ros.canbus.fastdecode`); foreign identifiers are counted
 and never decoded. With ``bridge.publish_on``, after a batch the thread leaves the frames
-queued in the socket until ``HOLD_MARGIN`` before the pacer can publish again
-(:meth:`~clutch_ros.canbus.counters.PublishPacer.until_allowed`), then reads them in one
-batch, paced on their bus times as before: ~200 reads/s at the demo's 2,500 frames/s instead
+queued in the socket until just after the pacer can publish again (``HOLD_MARGIN``,
+:meth:`~clutch_ros.canbus.counters.PublishPacer.until_allowed`), then reads them in one
+batch, paced on their bus times as before: ~130 reads/s at the demo's 2,500 frames/s instead
 of ~900 (each wake-up had cost more CPU than the frames it read). Each frame takes
 one path: the assembler decodes it into the live sample, the pacer decides, the sample
 becomes ``rig_state`` stamped with the newest contributing frame's bus time: at once when
@@ -113,8 +113,10 @@ NAME = "can_bridge"
 IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning
 FLUSH_PERIOD = 0.05  # [s] with publish_on: a frame held back by bridge.rate goes out then
 #: [s] with publish_on, the receive thread leaves the frames queued in the socket until this
-#: long before the pacer can publish again (each wake-up cost more CPU than its frames)
-HOLD_MARGIN = 0.001
+#: long before the pacer can publish again (each wake-up cost more CPU than its frames);
+#: negative: until just after, when the trigger frame due then is mostly queued already (one
+#: read per sample instead of ~2, for at most 0.3 ms of rig_state latency: RESULTS.md)
+HOLD_MARGIN = -0.0003
 OK, FAIL = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 
 
