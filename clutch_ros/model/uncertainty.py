@@ -232,7 +232,7 @@ class TorqueStd:
         """Start with an empty filter."""
         self.model = model
         self._filter = _RateFilter(model)
-        self._recent = _RecentError(model)
+        self._recent = _RecentResidual(model)
 
     def update(self, t: float, modelled: float, slip: float,
                measured: float = math.nan) -> float:
@@ -259,7 +259,7 @@ class TorqueStd:
         return _sigma(self.model, abs(modelled), rate, stick, _lag(self.model, rate, speed))
 
 
-class _RecentError:
+class _RecentResidual:
     """The low-pass ``E`` of the squared standardised residual (module docstring)."""
 
     def __init__(self, model: ErrorModel):
