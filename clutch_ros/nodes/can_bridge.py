@@ -278,9 +278,10 @@ class CanBridgeNode(LifecycleNode):
         self._rx = st.bus = st.source = None
 
     def close(self) -> None:
-        """Send a last 0 bar request when active, stop the threads and close the bus."""
+        """Send a last 0 bar request when active, stop the threads, close the bus, unsubscribe."""
         self._halt("shutdown")
         self._close_bus()
+        self._pump.unsubscribe()  # (after the cycle that takes from it stopped)
 
     def _node_time(self) -> float:
         """Return the node clock [s] (ROS time: /clock with use_sim_time).
