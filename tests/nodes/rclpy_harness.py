@@ -149,7 +149,7 @@ def assert_bad_settings_fail_at_start(node: str, cases: dict, env: dict) -> None
         for name, (args, _) in cases.items()}
     for name, proc in procs.items():
         out, err = proc.communicate(timeout=60)
-        assert proc.returncode == 2, (name, out, err)
+        assert proc.returncode == 2, (name, proc.returncode, out, err)
         assert "Traceback" not in err, (name, err)
         lines = [line for line in err.splitlines() if line.startswith(f"{node}: error:")]
         assert len(lines) == 1 and cases[name][1] in lines[0], (name, err)
