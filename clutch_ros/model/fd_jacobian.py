@@ -17,7 +17,7 @@ optimiser happened to stop, i.e. by round-off: a change of the model at the 1e-9
 How: both one-sided differences of every column, ``D+ = (f(z + h) − f(z)) / h`` and
 ``D− = (f(z) − f(z − h)) / h`` (clipped at the bounds). Element by element, where they agree
 (same sign, within a factor :data:`AGREE`) the central difference (the secant over both
-steps, O(h²) like :func:`~clutch_ros.model.fit_data.central_jacobian`) is taken; where they do
+steps, O(h²)) is taken; where they do
 not, one side crossed a jump (its magnitude ~jump / h, far above a slope) and the side of
 smaller magnitude is taken: the slope of the smooth piece the point lies on. A smooth residual
 gets the central difference (its sides differ by ~h |f''|, far inside :data:`AGREE` for

@@ -40,9 +40,9 @@ step 2; :class:`Segment` is the decimated piece of a run the fit simulates.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -63,14 +63,6 @@ if TYPE_CHECKING:
     from clutch_ros.model.arraytypes import FloatArray, IntArray
 
 
-class _BoundedResiduals(Protocol):
-    """What :func:`central_jacobian` needs of a problem (identification's ``_Problem``)."""
-
-    lower: FloatArray
-    upper: FloatArray
-
-    def __call__(self, z: FloatArray, /) -> FloatArray: ...
-
 __all__ = [
     "IdentificationError",
     "NoMeasuredTorqueError",
@@ -85,8 +77,6 @@ __all__ = [
     "select_segments",
     "model_block_means",
     "check_data",
-    "central_jacobian",
-    "conditioning",
     "rank_check",
 ]
 
@@ -464,35 +454,6 @@ def check_data(segments: Sequence[Segment], keys: Sequence[str], opts: FitOption
                 f"spans only {tspan:.2f} °C (< {opts.min_temperature_span:g} °C); fix it "
                 "(keep the base value) or add runs at other temperatures",
                 ["friction.temperature_slope"])
-
-
-def central_jacobian(problem: _BoundedResiduals, z: FloatArray, step: float,
-                     map_: Callable[[Callable[[FloatArray], FloatArray], list[FloatArray]],
-                                    Iterable[FloatArray]] = map) -> FloatArray:
-    """Central-difference Jacobian of ``problem(z)`` within ``problem.lower/upper``.
-
-    ``map_``: how the 2 n evaluations are run (e.g. a thread pool's ``map``); same result.
-    """
-    points, widths = [], []
-    for i in range(z.size):
-        lo = max(z[i] - step, problem.lower[i])
-        hi = min(z[i] + step, problem.upper[i])
-        zp, zm = z.copy(), z.copy()
-        zp[i], zm[i] = hi, lo
-        points += [zp, zm]
-        widths.append(hi - lo)
-    values = list(map_(problem, points))
-    return np.column_stack([(values[2 * i] - values[2 * i + 1]) / widths[i]
-                            for i in range(z.size)])
-
-
-def conditioning(jac: np.ndarray) -> float:
-    """Smallest / largest singular value of the column-normalised Jacobian (0 if a column is 0)."""
-    norms = np.linalg.norm(jac, axis=0)
-    if not (norms > 0.0).all():
-        return 0.0
-    sv = np.linalg.svd(jac / norms, compute_uv=False)
-    return float(sv[-1] / sv[0])
 
 
 def rank_check(jac: np.ndarray, keys: Sequence[str], tol: float) -> None:

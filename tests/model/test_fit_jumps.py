@@ -11,15 +11,25 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from clutch_ros.model.fd_jacobian import JacobianOf, jump_robust_jacobian
-from tests.model.test_fit_data import _Quadratic
 
 
-class _Smooth(_Quadratic):
+class _Smooth:
     """f(z) = A z + c z² (elementwise, first three rows), J = A + diag(2 c z); bounds ±1."""
 
     def __init__(self):
-        super().__init__()
+        self.a = np.array([[2.0, -1.0, 0.5], [0.0, 3.0, 1.0], [1.0, 1.0, 1.0], [4.0, 0.0, -2.0]])
+        self.c = np.array([0.5, -1.0, 2.0])
+        self.lower = np.array([-1.0, -1.0, -1.0])
         self.upper = np.array([1.0, 1.0, 1.0])
+
+    def __call__(self, z):
+        z = np.asarray(z, dtype=float)
+        return self.a @ z + np.concatenate([self.c * z * z, [0.0]])
+
+    def jacobian(self, z):
+        j = self.a.copy()
+        j[:3, :3] += np.diag(2.0 * self.c * z)
+        return j
 
 
 class _Jumping(_Smooth):
