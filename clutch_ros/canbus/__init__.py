@@ -2,8 +2,10 @@
 
 Modules:
 
-* :mod:`~clutch_ros.canbus.dbc` -- :class:`RigDatabase` (strict DBC, SI decode/encode),
-  :class:`PumpRequestCodec` (counter + CRC-8 SAE J1850).
+* :mod:`~clutch_ros.canbus.dbc` -- :class:`RigDatabase` (strict DBC, SI decode/encode,
+  CRC-8 SAE J1850).
+* :mod:`~clutch_ros.canbus.pump_codec` -- :class:`PumpRequestCodec` (the pressure command
+  frame: counter and checksum, its payload built directly where the DBC allows).
 * :mod:`~clutch_ros.canbus.units` -- DBC bus units and their conversion to SI.
 * :mod:`~clutch_ros.canbus.signal_map` -- which DBC message and signal feeds each RigState
   field and the pump command (``map.<field>`` parameters).
@@ -33,7 +35,7 @@ Benchmarks of this layer live outside the package: ``python -m benchmarks.can_de
 
 from clutch_ros.canbus.assembler import RigStateAssembler
 from clutch_ros.canbus.bus import BusConfig, LinkState, ReconnectingBus, open_bus
-from clutch_ros.canbus.dbc import PumpRequestCodec, RigDatabase
+from clutch_ros.canbus.dbc import RigDatabase
 from clutch_ros.canbus.errors import (
     BusConfigError,
     BusUnavailable,
@@ -44,6 +46,7 @@ from clutch_ros.canbus.errors import (
     LogFileError,
 )
 from clutch_ros.canbus.logsource import LogSource
+from clutch_ros.canbus.pump_codec import PumpRequestCodec
 from clutch_ros.canbus.pump_gate import GateOutput, PumpCommandGate, PumpGateConfig
 from clutch_ros.rigstate import RigSample
 

@@ -280,6 +280,23 @@ class PublishPacer:
             self._flowing_since = now
         return (now - self._flowing_since) * self.rate > 2.0
 
+    def trigger_held(self, now: float) -> bool:
+        """:meth:`on_frame` for the trigger at ``now`` [s] when it declines; else nothing.
+
+        True: the trigger frame is held back by the cap, with the state :meth:`on_frame`
+        leaves then (tokens earned, ``pending``). False: nothing changed, and
+        :meth:`on_frame` decides. The can_bridge asks it first for each trigger frame (up to
+        1,000/s, of which ``rate`` publish), without the work a publication needs.
+        """
+        if self.trigger is None:
+            return False
+        tokens = self._tokens if self._last is None else min(
+            self.burst, self._tokens + max(0.0, now - self._last) * self.rate)
+        if tokens >= 1.0:
+            return False
+        self._tokens, self._last, self._flowing_since, self.pending = tokens, now, None, True
+        return True
+
     def flush(self, now: float) -> bool:
         """Timer decision at ``now``: publish a pending frame (or, without trigger, any)."""
         if self.trigger is not None and not (self.pending and self._last is not None

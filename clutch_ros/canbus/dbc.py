@@ -27,11 +27,10 @@ import cantools.database
 from clutch_ros.canbus.errors import DbcError, EncodeError, FrameDecodeError
 from clutch_ros.canbus.units import UNIT_TO_SI
 from clutch_ros.config.presets import DBC_NAME, share_file
-from clutch_ros.errors import ConfigError
 
 __all__ = [
-    "CAN_EFF_FLAG", "UNIT_TO_SI", "FrameSpec", "RigDatabase", "SignalSpec", "PumpRequestCodec",
-    "counter_gap", "crc8_sae_j1850", "default_dbc_path", "format_frame_key", "frame_key",
+    "CAN_EFF_FLAG", "UNIT_TO_SI", "FrameSpec", "RigDatabase", "SignalSpec", "counter_gap",
+    "crc8_sae_j1850", "default_dbc_path", "finite_value", "format_frame_key", "frame_key",
 ]
 
 #: Flag or-ed into a frame key for 29-bit identifiers (the SocketCAN ``CAN_EFF_FLAG``).
@@ -71,7 +70,7 @@ def counter_gap(previous: int, current: int, modulo: int = 16) -> int:
     return (current - previous - 1) % modulo
 
 
-def _finite(value: Any, what: str) -> float:
+def finite_value(value: Any, what: str) -> float:
     """Return ``float(value)``; a non-number or NaN/inf raises :class:`EncodeError`."""
     try:
         number = float(value)
@@ -378,7 +377,7 @@ class RigDatabase:
             sig = own.get(sig_name)
             if sig is None:
                 raise EncodeError(f"{name}: unknown signal {sig_name!r}")
-            number = _finite(value, f"{name}.{sig_name}")
+            number = finite_value(value, f"{name}.{sig_name}")
             bus_values[sig_name] = number / sig.factor if sig.factor != 1.0 else value
         try:
             data = bytearray(message.encode(bus_values, scaling=True, strict=strict))
@@ -409,99 +408,3 @@ class RigDatabase:
             data=self.encode(name, values, counter, strict),
             timestamp=timestamp,
         )
-
-
-class PumpRequestCodec:
-    """Encode and verify the E2E-protected ``PumpRequest`` frame (pressure in Pa).
-
-    ``max_pressure`` [Pa] is the largest pressure :meth:`encode` accepts (default: the DBC
-    maximum of ``PumpReq_Pressure``, 60 bar); it must not exceed the DBC maximum.
-    ``resolution`` is 100 Pa (0.001 bar). Raises :class:`clutch_ros.errors.ConfigError` for a
-    bad ``max_pressure``. ``message`` and ``pressure`` name the frame and its pressure signal
-    (defaults: ``PumpRequest.PumpReq_Pressure`` of ``params/rig.dbc``); the signal's unit must
-    convert to Pa.
-    """
-
-    MESSAGE = "PumpRequest"
-    PRESSURE = "PumpReq_Pressure"
-
-    def __init__(self, db: RigDatabase | None = None, max_pressure: float | None = None,
-                 message: str | None = None, pressure: str | None = None) -> None:
-        self.db = db if db is not None else RigDatabase()
-        self.MESSAGE, self.PRESSURE = message or self.MESSAGE, pressure or self.PRESSURE
-        self.spec = self.db.frame(self.MESSAGE)
-        if not self.spec.e2e or self.spec.counter_signal is None:
-            raise DbcError(f"{self.db.path}: {self.MESSAGE} is not E2E protected")
-        sig = self.db.signal(self.PRESSURE)
-        if sig.si_unit != "Pa" or sig.name not in {s.name for s in self.spec.signals}:
-            raise DbcError(f"{self.db.path}: {self.MESSAGE}.{self.PRESSURE} must be a pressure "
-                           f"signal of {self.MESSAGE} (unit bar, kPa, ...), has {sig.unit!r}")
-        if sig.maximum is None or sig.minimum != 0.0:
-            raise DbcError(f"{self.db.path}: {self.PRESSURE} must have the range [0|max]")
-        self.resolution = sig.resolution
-        dbc_max = sig.maximum
-        if max_pressure is None:
-            max_pressure = dbc_max
-        if not (math.isfinite(max_pressure) and 0.0 < max_pressure <= dbc_max + 1e-6):
-            raise ConfigError(
-                f"pump max pressure must be in (0, {dbc_max:.0f}] Pa, got {max_pressure!r}"
-            )
-        #: largest raw value that does not exceed ``max_pressure``
-        self.max_raw = math.floor(max_pressure / self.resolution + 1e-9)
-        #: largest encodable pressure [Pa] (``max_pressure`` rounded down to the resolution)
-        self.max_pressure = self.max_raw * self.resolution
-
-    def quantize(self, pressure: float) -> float:
-        """Return the representable pressure [Pa] nearest to ``pressure``, within [0, max].
-
-        NaN maps to 0 Pa.
-        """
-        if math.isnan(pressure):
-            return 0.0
-        if pressure >= self.max_pressure:
-            return self.max_pressure
-        raw = max(0, min(self.max_raw, round(pressure / self.resolution)))
-        return raw * self.resolution
-
-    def encode(self, pressure: float, counter: int, timestamp: float = 0.0) -> can.Message:
-        """Return a PumpRequest frame for ``pressure`` [Pa] and rolling ``counter`` (0..15).
-
-        The pressure is rounded to the 100 Pa resolution; the checksum is computed. Strict:
-        NaN/inf, negative or above ``max_pressure`` (beyond half a resolution step) and
-        counters outside 0..15 raise :class:`EncodeError`.
-        """
-        value = _finite(pressure, "pump pressure")
-        if value < 0.0 or value > self.max_pressure + 0.5 * self.resolution:
-            raise EncodeError(
-                f"pump pressure {value:.1f} Pa outside [0, {self.max_pressure:.0f}] Pa"
-            )
-        quantized = self.quantize(value)
-        return self.db.make_message(
-            self.MESSAGE, {self.PRESSURE: quantized}, counter=counter, timestamp=timestamp
-        )
-
-    def decode(self, frame: can.Message | bytes | bytearray) -> tuple[float, int, bool]:
-        """Decode a PumpRequest into ``(pressure [Pa], counter, checksum_ok)``.
-
-        Raises :class:`FrameDecodeError` when ``frame`` is a message with another identifier
-        or the payload has the wrong length.
-        """
-        if isinstance(frame, can.Message):
-            if (
-                frame.is_error_frame
-                or frame.is_remote_frame
-                or frame_key(frame.arbitration_id, frame.is_extended_id) != self.spec.key
-            ):
-                raise FrameDecodeError(
-                    f"not a {self.MESSAGE} frame: {format_frame_key(frame.arbitration_id)}",
-                    "unknown",
-                )
-            data = bytes(frame.data)
-        else:
-            data = bytes(frame)
-        values = self.db.decode(  # the receiver judges checksum and range itself
-            self.spec.frame_id, data, self.spec.is_extended, check_e2e=False, check_range=False
-        )
-        checksum_ok = crc8_sae_j1850(data[1:]) == data[0]
-        assert self.spec.counter_signal is not None
-        return float(values[self.PRESSURE]), int(values[self.spec.counter_signal]), checksum_ok

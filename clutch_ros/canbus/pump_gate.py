@@ -37,8 +37,8 @@ from typing import NamedTuple
 
 import can
 
-from clutch_ros.canbus.dbc import PumpRequestCodec
 from clutch_ros.canbus.errors import EncodeError
+from clutch_ros.canbus.pump_codec import PumpRequestCodec
 from clutch_ros.errors import ConfigError
 
 __all__ = ["PUMP_PERIOD", "REFUSAL_REASONS", "GateOutput", "PumpCommandGate", "PumpGateConfig"]

@@ -39,8 +39,9 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from clutch_ros.canbus.dbc import PumpRequestCodec, RigDatabase
+from clutch_ros.canbus.dbc import RigDatabase
 from clutch_ros.canbus.errors import DbcError
+from clutch_ros.canbus.pump_codec import PumpRequestCodec
 from clutch_ros.rigstate import FF_SIGNALS, FIELDS, WHEEL_SIGNALS
 
 __all__ = ["GROUPS", "KEYS", "REQUIRED_KEYS", "MapEntry", "ResolvedMap", "SignalMap",

@@ -29,6 +29,7 @@ timeout then takes it to 0 bar.
 from __future__ import annotations
 
 import threading
+import time
 from collections import namedtuple
 from collections.abc import Callable
 from typing import Any
@@ -188,8 +189,10 @@ class PumpSender:
         st.last_report = (out.pressure, out.reason)
         if command is not None and self.sim_time:  # the command's stamp (nodes/lockstep)
             sec, nanosec = command.header_stamp_sec, command.header_stamp_nanosec
-        else:
+        elif self.sim_time:
             sec, nanosec = divmod(self._node.get_clock().now().nanoseconds, 10**9)
+        else:  # the ROS clock without use_sim_time is the system clock
+            sec, nanosec = divmod(time.time_ns(), 10**9)
         applied = self._encode(sec, nanosec, "", float(out.pressure),
                                command.requested_torque if command else 0.0,
                                command.predicted_torque if command else 0.0,

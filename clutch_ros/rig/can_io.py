@@ -24,8 +24,9 @@ from dataclasses import dataclass
 
 import can
 
-from clutch_ros.canbus.dbc import PumpRequestCodec, RigDatabase
+from clutch_ros.canbus.dbc import RigDatabase
 from clutch_ros.canbus.errors import CanError, FrameDecodeError
+from clutch_ros.canbus.pump_codec import PumpRequestCodec
 from clutch_ros.rig.errors import RigConfigError, check_positive
 
 __all__ = [

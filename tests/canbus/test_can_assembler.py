@@ -306,6 +306,15 @@ def test_publish_pacer_trigger_rate_cap_and_fallback():
         PublishPacer(0.0, speed)
 
 
+def _pacer_frames(rng, n: int, keys: list[int]):
+    """(bus time [s], key) of ``n`` frames: every 0-3 ms, pauses, a time going back."""
+    t = 10.0
+    for _ in range(n):
+        t += rng.choice([0.0, 0.0005, 0.001, 0.003, 0.03, -2.0 if rng.random() < 0.01
+                         else 0.002])
+        yield t, rng.choice(keys)
+
+
 def test_publish_pacer_fallback_due_first_publishes_what_on_frame_alone_does():
     """The bridge asks fallback_due before on_frame: the same publications, frame for frame."""
     import random
@@ -317,17 +326,39 @@ def test_publish_pacer_fallback_due_first_publishes_what_on_frame_alone_does():
     for rate in (50.0, 100.0, 1000.0):
         alone = PublishPacer(rate, speed, frozenset({fast, speed, temps}))
         asked = PublishPacer(rate, speed, frozenset({fast, speed, temps}))
-        t, decisions = 10.0, 0
-        for _ in range(5000):
-            # frames every 0-3 ms, pauses, a time going back, the trigger now and then
-            t += rng.choice([0.0, 0.0005, 0.001, 0.003, 0.03, -2.0 if rng.random() < 0.01
-                             else 0.002])
-            key = rng.choice([fast, fast, temps, foreign, speed if rng.random() < 0.3 else fast])
+        decisions = 0  # the trigger now and then: fallbacks publish too
+        for t, key in _pacer_frames(rng, 5000, [fast] * 6 + [temps] * 3 + [foreign] * 3
+                                    + [speed]):
             expected = alone.on_frame(key, t)
             got = (key == asked.trigger or asked.fallback_due(key, t)) and asked.on_frame(key, t)
             assert got == expected, (rate, t, key)
             decisions += expected
         assert decisions > 50  # publications happened, fallback and trigger alike
+
+
+def test_publish_pacer_trigger_held_first_leaves_what_on_frame_alone_does():
+    """The bridge asks trigger_held before on_frame: same decisions, same state, frame by frame."""
+    import random
+
+    from clutch_ros.canbus.counters import PublishPacer
+
+    fast, speed, temps = 0x100, 0x101, 0x110
+    rng = random.Random(12)
+    for rate in (50.0, 100.0, 1000.0):
+        alone = PublishPacer(rate, speed, frozenset({fast, speed, temps}))
+        asked = PublishPacer(rate, speed, frozenset({fast, speed, temps}))
+        held = 0
+        for step, (t, key) in enumerate(_pacer_frames(rng, 8000, [fast, temps, speed, speed])):
+            if step % 97 == 0:  # the bridge's slow timer
+                assert alone.flush(t) == asked.flush(t)
+            expected = alone.on_frame(key, t)
+            if key == asked.trigger and asked.trigger_held(t):
+                got, held = False, held + 1
+            else:
+                got = asked.on_frame(key, t)
+            assert got == expected, (rate, t, key)
+            assert vars(asked) == vars(alone), (rate, t, key)
+        assert held > 100  # the pre-check did decline triggers
 
 
 def test_publish_pacer_until_allowed_is_the_first_moment_any_frame_can_publish():

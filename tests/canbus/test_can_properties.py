@@ -12,8 +12,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from clutch_ros.canbus.assembler import RigStateAssembler
-from clutch_ros.canbus.dbc import PumpRequestCodec, RigDatabase
+from clutch_ros.canbus.dbc import RigDatabase
 from clutch_ros.canbus.errors import FrameDecodeError
+from clutch_ros.canbus.pump_codec import PumpRequestCodec
 from clutch_ros.canbus.pump_gate import PumpCommandGate, PumpGateConfig
 from clutch_ros.rigstate import FIELDS
 

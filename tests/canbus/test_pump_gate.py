@@ -11,7 +11,7 @@ import random
 import pytest
 from numpy.testing import assert_allclose
 
-from clutch_ros.canbus.dbc import PumpRequestCodec
+from clutch_ros.canbus.pump_codec import PumpRequestCodec
 from clutch_ros.canbus.pump_gate import PUMP_PERIOD, PumpCommandGate, PumpGateConfig
 from clutch_ros.errors import ConfigError
 

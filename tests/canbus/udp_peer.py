@@ -17,7 +17,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from fuzzgen import generate  # noqa: E402
 
-from clutch_ros.canbus.dbc import PumpRequestCodec, RigDatabase  # noqa: E402
+from clutch_ros.canbus.dbc import RigDatabase
+from clutch_ros.canbus.pump_codec import PumpRequestCodec  # noqa: E402
 
 
 def main() -> int:

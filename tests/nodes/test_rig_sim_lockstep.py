@@ -16,7 +16,7 @@ import os
 import pytest
 
 from clutch_ros.canbus import BusConfig, RigDatabase, open_bus
-from clutch_ros.canbus.dbc import PumpRequestCodec
+from clutch_ros.canbus.pump_codec import PumpRequestCodec
 from clutch_ros.cli.processes import NodeProcess, isolated_ros_env, ros_param_args
 from tests.canbus.recorder import BusRecorder, bus_params, private_group
 from tests.nodes.rclpy_harness import Harness

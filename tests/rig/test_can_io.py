@@ -9,7 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from clutch_ros.canbus.dbc import PumpRequestCodec, RigDatabase
+from clutch_ros.canbus.dbc import RigDatabase
+from clutch_ros.canbus.pump_codec import PumpRequestCodec
 from clutch_ros.rig.can_io import FrameScheduler, RigCanPort
 from clutch_ros.rig.errors import RigConfigError
 from clutch_ros.rig.plant import RigPlant

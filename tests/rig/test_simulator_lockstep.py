@@ -13,7 +13,8 @@ import uuid
 import can
 import pytest
 
-from clutch_ros.canbus.dbc import PumpRequestCodec, RigDatabase
+from clutch_ros.canbus.dbc import RigDatabase
+from clutch_ros.canbus.pump_codec import PumpRequestCodec
 from clutch_ros.rig.can_io import RigCanPort
 from clutch_ros.rig.errors import RigConfigError
 from clutch_ros.rig.plant import RigPlant
