@@ -21,7 +21,12 @@ overhead on the hot path:
   called directly (whether the callback takes a ``TimerInfo`` is looked up once per callback);
 * services, clients, node guard conditions and waitables (QoS event handlers) go through
   rclpy's own task machinery (they are rare); while such a task is still pending (a coroutine
-  callback), iterations are rclpy's.
+  callback), iterations are rclpy's;
+* QoS event handlers (incompatible QoS, deadline, liveliness: about ten per node, each added
+  to the wait set and asked whether it is ready, ~5 % of a wake-up) join the wait at most every
+  :data:`EVENT_POLL_PERIOD`: an event stays pending in the middleware until it is taken, so it
+  is handled at most that much later, and an idle node still looks at least that often (the
+  wait is bounded by the next poll while handlers are left out).
 
 Exceptions of callbacks propagate out of :meth:`spin_once` as with rclpy's executor; a context
 shut down (a signal) raises :class:`~rclpy.executors.ExternalShutdownException`.
@@ -30,10 +35,12 @@ shut down (a signal) raises :class:`~rclpy.executors.ExternalShutdownException`.
 from __future__ import annotations
 
 import inspect
+import time
 from contextlib import ExitStack
 from functools import partial
 from typing import Any, cast
 
+from rclpy.event_handler import EventHandler
 from rclpy.exceptions import InvalidHandle
 from rclpy.executors import (
     ExternalShutdownException,
@@ -44,7 +51,10 @@ from rclpy.subscription import Subscription
 from rclpy.timer import TimerInfo
 from rclpy.utilities import timeout_sec_to_nsec
 
-__all__ = ["LeanExecutor"]
+__all__ = ["EVENT_POLL_PERIOD", "LeanExecutor"]
+
+#: [s] how often QoS event handlers join the wait (module docstring)
+EVENT_POLL_PERIOD = 0.5
 
 
 def _timer_info_arg(callback) -> str | None:
@@ -66,7 +76,9 @@ class LeanExecutor(SingleThreadedExecutor):
         self._subs: list = []
         self._timers: list = []
         self._others: list = []  # (entity, node, take) for services, clients, guards
-        self._waitables: list = []  # (waitable, node)
+        self._waitables: list = []  # (waitable, node), but QoS event handlers
+        self._events: list = []  # (QoS event handler, node): polled (EVENT_POLL_PERIOD)
+        self._events_due = 0.0  # [s] time.monotonic() when they next join the wait
         self._handles: tuple[list, list, list, list, list] = ([], [], [], [], [])
         self._timer_args: dict[int, tuple[Any, str | None]] = {}
         self.rebuilds = 0  # how often the wait set was built (a probe reads it)
@@ -132,8 +144,9 @@ class LeanExecutor(SingleThreadedExecutor):
             len(cli_h) + extra.get("clients", 0), len(srv_h) + extra.get("services", 0),
             n_events, context)
         self._held = stack
-        self._subs, self._timers, self._others, self._waitables = subs, timers, others, \
-            waitables
+        self._subs, self._timers, self._others = subs, timers, others
+        self._waitables = [(wt, n) for wt, n in waitables if not isinstance(wt, EventHandler)]
+        self._events = [(wt, n) for wt, n in waitables if isinstance(wt, EventHandler)]
         self._handles = (sub_h, tmr_h, cli_h, srv_h, gc_h)
 
     # -- spinning ----------------------------------------------------------------------------
@@ -160,8 +173,11 @@ class LeanExecutor(SingleThreadedExecutor):
         """
         return super().shutdown(timeout_sec)
 
-    def _fill(self, ws) -> None:
-        """Clear the kept wait set and add every kept handle and waitable to it."""
+    def _fill(self, ws, events: bool = True) -> None:
+        """Clear the kept wait set and add every kept handle and waitable to it.
+
+        ``events``: the QoS event handlers too.
+        """
         sub_h, tmr_h, cli_h, srv_h, gc_h = self._handles
         ws.clear_entities()
         for h in sub_h:
@@ -176,6 +192,9 @@ class LeanExecutor(SingleThreadedExecutor):
             ws.add_guard_condition(h)
         for wt, _node in self._waitables:
             wt.add_to_wait_set(ws)
+        if events:
+            for wt, _node in self._events:
+                wt.add_to_wait_set(ws)
 
     def _lean_once(self, timeout_sec: float | None) -> None:
         if self._tasks:  # a coroutine callback is pending: rclpy's iteration runs tasks
@@ -184,15 +203,22 @@ class LeanExecutor(SingleThreadedExecutor):
             return
         if self._wait_set is None:
             self._build()
+        now = time.monotonic()
+        events = now >= self._events_due
+        if events:
+            self._events_due = now + EVENT_POLL_PERIOD
         try:
-            self._fill(self._wait_set)
+            self._fill(self._wait_set, events)
         except InvalidHandle:
             # an entity destroyed by a callback of the last iteration (a lifecycle cleanup
             # destroys publishers and their QoS event handlers from a service callback): the
             # guard condition that says so is only seen by the next wait, so rebuild now
             self._build()
-            self._fill(self._wait_set)
+            self._fill(self._wait_set, events)
         ws = self._wait_set
+        if not events and self._events:  # left out: wake for them by the next poll at least
+            due = self._events_due - now
+            timeout_sec = due if timeout_sec is None or timeout_sec < 0 else min(timeout_sec, due)
         ws.wait(timeout_sec_to_nsec(timeout_sec))
         if self._is_shutdown:
             return
@@ -206,6 +232,8 @@ class LeanExecutor(SingleThreadedExecutor):
                     and gc.handle.pointer in guards_ready:
                 gc._executor_triggered = True
         ready_waitables = [(wt, node) for wt, node in self._waitables if wt.is_ready(ws)]
+        if events:
+            ready_waitables += [(wt, node) for wt, node in self._events if wt.is_ready(ws)]
         timers_ready = ws.get_ready_entities("timer")
         subs_ready = ws.get_ready_entities("subscription")
         clients_ready = ws.get_ready_entities("client")

@@ -9,8 +9,10 @@ import rclpy
 from clutch_msgs.msg import RigState
 from rcl_interfaces.msg import Parameter, ParameterType, SetParametersResult
 from rcl_interfaces.srv import SetParameters
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
+from rclpy.qos import QoSPolicyKind, QoSProfile, ReliabilityPolicy
 
 from clutch_ros.nodes.lean_executor import LeanExecutor
 from clutch_ros.nodes.qos import sensor_qos
@@ -167,5 +169,48 @@ def test_an_entity_destroyed_by_a_service_callback_leaves_the_executor_serving()
         thread.join(10.0)
     assert not errors, errors
     assert node.pub is None and node.get_parameter("gain").value == 3.0
+    executor.shutdown()
+    node.destroy_node()
+
+
+class _Strict(Node):
+    """A subscription that requires reliable delivery, with an incompatible-QoS callback."""
+
+    def __init__(self, context):
+        super().__init__("lean_probe_node", context=context)
+        self.incompatible: list = []
+        self.received: list = []
+        self.ticks = 0
+        events = SubscriptionEventCallbacks(incompatible_qos=self.incompatible.append)
+        self.create_subscription(RigState, "rig_state_qos", self.received.append,
+                                 QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE),
+                                 event_callbacks=events)
+        self.create_timer(0.01, self._tick)
+
+    def _tick(self) -> None:
+        self.ticks += 1
+
+
+def test_qos_events_are_handled_although_they_join_the_wait_only_now_and_then():
+    """The event handlers are polled every EVENT_POLL_PERIOD, busy or idle: the event comes.
+
+    A best-effort publisher meets the reliable subscription: the middleware raises the
+    requested-incompatible-QoS event, which must reach the callback while a 100 Hz timer keeps
+    the executor waking (the handlers are then left out of most waits) and while it is idle.
+    """
+    context, node, executor, thread, errors = _start(_Strict)
+    try:
+        with Harness("lean_peer") as peer:
+            pub = peer.node.create_publisher(  # incompatible: best effort offered
+                RigState, "rig_state_qos",
+                QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT))
+            peer.spin_until(lambda: bool(node.incompatible), 30.0, "the incompatible-QoS event")
+            assert node.ticks > 0 and not node.received
+            assert node.incompatible[0].last_policy_kind == QoSPolicyKind.RELIABILITY
+            peer.node.destroy_publisher(pub)
+    finally:
+        rclpy.try_shutdown(context=context)
+        thread.join(10.0)
+    assert not errors, errors
     executor.shutdown()
     node.destroy_node()
