@@ -42,8 +42,10 @@ _MODULES = {
         "calibrate_same_sensor", "compare_methods", "quasi_static_mask",
     ),
     "control": (
-        "ControlCommand", "ControllerOutput", "ControllerSettings", "TorqueController",
-        "command_pressure",
+        "ControlCommand", "ControllerOutput", "TorqueController", "command_pressure",
+    ),
+    "controller_settings": (
+        "ControllerSettings",
     ),
     "errors": (
         "DuplicateSample", "InputError", "ModelError", "NonFiniteSample",
