@@ -23,7 +23,7 @@ from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
 from clutch_ros.model import reference_torque
 from clutch_ros.model.adaptation import AdaptationSettings
-from clutch_ros.model.control import ControllerSettings
+from clutch_ros.model.controller_settings import ControllerSettings
 from clutch_ros.offline.closed_loop import run_closed_loop
 from clutch_ros.rig import RigPlant
 from clutch_ros.rig.request_profile import demo_profile

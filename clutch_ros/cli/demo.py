@@ -54,7 +54,7 @@ from clutch_ros.config.presets import preset_path
 from clutch_ros.errors import ClutchError
 from clutch_ros.interfaces import DIAGNOSTICS
 from clutch_ros.model import reference_torque
-from clutch_ros.model.control import ControllerSettings
+from clutch_ros.model.controller_settings import ControllerSettings
 from clutch_ros.nodes.demo_driver import DemoDriver
 from clutch_ros.nodes.lockstep import EPOCH_NS
 from clutch_ros.nodes.realtime import RealtimeSettings, apply_realtime, policy_of, time_sharing

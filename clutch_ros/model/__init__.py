@@ -18,8 +18,8 @@ documents its quantities. Main entry points:
 - :class:`ModelError` and its subclasses (``errors``).
 
 Not exported here (import the module): ``adaptation`` (online friction-scale adaptation),
-``film`` (oil film and thermal state), ``kernel`` / ``kernel_box`` (the compiled per-sample
-loop, numba).
+``film`` (oil film and thermal state), ``kernel`` / ``kernel_loop`` / ``kernel_box`` (the
+compiled per-sample loop, numba).
 
 Every name is imported lazily from its module on first use (``_EXPORTS``).
 """
@@ -42,8 +42,10 @@ _MODULES = {
         "calibrate_same_sensor", "compare_methods", "quasi_static_mask",
     ),
     "control": (
-        "ControlCommand", "ControllerOutput", "ControllerSettings", "TorqueController",
-        "command_pressure",
+        "ControlCommand", "ControllerOutput", "TorqueController", "command_pressure",
+    ),
+    "controller_settings": (
+        "ControllerSettings",
     ),
     "errors": (
         "DuplicateSample", "InputError", "ModelError", "NonFiniteSample",

@@ -14,29 +14,12 @@ What is fitted (:data:`FREE_PARAMETERS`, dotted keys; ``fixed=`` removes any of 
 - ``coulomb``: ``spline.friction_coefficient`` (μ_s; only μ_s / r_s matters, r_s is kept).
 
 Objective: nonlinear least squares (:func:`scipy.optimize.least_squares`, trust-region
-reflective, bounds) of the residual measured − modelled torque [N m] over all runs, plus, where
-a run carries a P_diff measurement (FlexiForce-derived, :mod:`~clutch_ros.model.calibration`),
-``pdiff_weight · g · (P_diff,measured − P_diff,model)`` with ``g = 2 μ_ref R_e N A`` [N m/Pa]
-(the torque one pascal of actuating pressure gives), so both terms are in N m.
-
-A FlexiForce calibration fitted against the actuating force (thesis §5.5) assumes that the
-rear disc carries the same force as the front one, so each disc's estimate is off by an
-unknown gain (the average spline loss, sensor drift) and a raw P_diff carries a bias of the
-order of 1 bar that would pull the friction law away from the torque. When a run gives the
-front and rear pressures separately, the model P_diff is therefore compared as
-``c_f · P_front,model − c_r · P_rear,model`` with per-run disc gains ``(c_f, c_r)`` solved by
-linear least squares inside every residual evaluation (variable projection;
-``pdiff_disc_gains``): P_diff informs the *dynamics* of the spline loss (its sign changes
-between compression and rebound), not its absolute level — what the thesis trusts it for.
-
-Parameterisation: positive parameters (μ_ref, κ, τ, μ_s, c) are fitted as ``log(v / v0)``,
-the signed ones as ``(v − v0) / scale`` (1e-3 1/°C for the temperature slope, 0.01 for the
-pressure loss), so every variable is O(1) and one finite-difference step (1e-3) suits all.
-Bounds: the ranges of :data:`~clutch_ros.model.params.PARAMETER_SPECS`, the cross-key rules of
-:class:`~clutch_ros.model.params.ClutchParams` (μ_ref ≥ μ_min, a pressure loss that keeps the
-torque rising up to ``max_pressure``) and three decades either side of the start for the log
-parameters. Start: the base parameters (Table 7 for ff_t/ff_v when the base has another law),
-with μ_ref rescaled by a linear least-squares fit of Eq. 1 to the torque.
+reflective, bounds) of the residuals of :class:`~clutch_ros.model.fit_problem.FitProblem`:
+measured − modelled torque [N m] over all runs, plus the weighted P_diff residual where a run
+carries a P_diff measurement; the problem's module docstring gives the residuals (P_diff
+disc gains by variable projection), the parameterisation and the bounds. Start: the base
+parameters (Table 7 for ff_t/ff_v when the base has another law), with μ_ref rescaled by a
+linear least-squares fit of Eq. 1 to the torque.
 
 Standard errors: ``σ² (JᵀJ)⁻¹`` with ``σ² = Σ r² / (m − n)`` and J the solver's
 finite-difference Jacobian at the optimum, mapped to parameter units (``v · se`` for log
@@ -63,7 +46,6 @@ iterations of 2 n + 1 evaluations; ``max_seconds`` (45 s) ends a fit early, not 
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -72,9 +54,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from clutch_ros.model import kernel
 from clutch_ros.model.batch import estimate_batch
-from clutch_ros.model.compliance import comply
 from clutch_ros.model.fd_jacobian import JacobianOf
 from clutch_ros.model.fit_data import (
     SAMPLE_BUDGET,
@@ -86,22 +66,17 @@ from clutch_ros.model.fit_data import (
     TooShortError,
     UnidentifiableParameterError,
     check_data,
-    model_block_means,
     prepare_segments,
     rank_check,
     select_segments,
 )
+from clutch_ros.model.fit_problem import TRANSFORM, FitProblem
 from clutch_ros.model.friction import reference_torque
 from clutch_ros.model.laws import LawTable, law_info
 from clutch_ros.model.metrics import rmse
-from clutch_ros.model.pack import PackModel
 from clutch_ros.model.params import PARAMETER_SPECS, SPLINE_LAWS, TABLE7, ClutchParams
-from clutch_ros.model.simulate import simulate, simulate_columns
 
 if TYPE_CHECKING:
-    from numpy.typing import ArrayLike
-
-    from clutch_ros.model.arraytypes import FloatArray
     from clutch_ros.model.fit_data import Segment
 
 __all__ = [
@@ -115,23 +90,6 @@ __all__ = [
 #: Parameters fitted per spline law (dotted keys), before ``fixed``: a live view of the
 #: registry's :attr:`~clutch_ros.model.laws.SplineLawInfo.free_parameters`.
 FREE_PARAMETERS = LawTable("free_parameters")
-
-#: key -> (log parameterisation, linear scale)
-_TRANSFORM = {
-    "friction.mu_ref": (True, 1.0),
-    "friction.temperature_slope": (False, 1e-3),
-    "friction.pressure_loss_at_ref": (False, 0.01),
-    "spline.gain": (True, 1.0),
-    "spline.time_constant": (True, 1.0),
-    "spline.friction_coefficient": (True, 1.0),
-    "clutch.lamella_damping": (True, 1.0),
-    "friction.film_depth": (False, 0.1),
-    "friction.film_recovery_time": (True, 1.0),
-    "friction.film_thinning_time": (True, 1.0),
-    "drivetrain.stiffness": (True, 1.0),
-    "drivetrain.damping": (True, 1.0),
-}
-_LOG_SPAN = math.log(1e3)  # log parameters may move three decades either way
 
 
 @dataclass(frozen=True)
@@ -244,124 +202,6 @@ def initial_params(base: ClutchParams, law: str) -> ClutchParams:
     return params.updated(changes) if changes else params
 
 
-class _Problem:
-    """Residuals of the scaled parameter vector z over the selected segments."""
-
-    def __init__(self, base: ClutchParams, keys: Sequence[str], segments: Sequence[Segment],
-                 opts: FitOptions) -> None:
-        self.base = base
-        self.keys = tuple(keys)
-        self.segments = segments
-        self.opts = opts
-        flat = base.to_flat()
-        self.v0 = np.array([float(flat[k]) for k in self.keys])
-        self.log = np.array([_TRANSFORM[k][0] for k in self.keys])
-        self.scale = np.array([_TRANSFORM[k][1] for k in self.keys])
-        self.lower, self.upper = self._bounds()
-        pk = base.pack
-        self.torque_per_pa = (2.0 * base.friction.mu_ref * pk.effective_radius
-                              * pk.lamella_count * pk.piston_area)
-        self.calls = 0
-        self._lock = threading.Lock()  # calls is counted from the Jacobian's threads too
-        self.gains: dict[int, tuple[float, float]] = {}
-        self.n_torque = int(sum(int((s.fit & np.isfinite(s.torque)).sum()) for s in segments))
-        self.n_pdiff = int(sum(int((s.fit & np.isfinite(s.pdiff)).sum()) for s in segments
-                               if s.pdiff is not None)) if opts.pdiff_weight > 0.0 else 0
-
-    def _bounds(self) -> tuple[FloatArray, FloatArray]:
-        lo: list[float] = []
-        hi: list[float] = []
-        fr, pk = self.base.friction, self.base.pack
-        for key, v0, log, scale in zip(self.keys, self.v0, self.log, self.scale):
-            spec = PARAMETER_SPECS[key]
-            vmin = spec.minimum if spec.minimum is not None else -math.inf
-            vmax = spec.maximum if spec.maximum is not None else math.inf
-            if key == "friction.mu_ref":
-                vmin = max(vmin, fr.mu_min)
-            if key == "friction.pressure_loss_at_ref":
-                vmax = min(vmax, 0.999 * fr.pressure_ref / (2.0 * pk.max_pressure))
-            if key == "spline.time_constant":
-                vmin, vmax = max(vmin, 1e-3), min(vmax, 1e3)
-            if log:
-                a = math.log(max(vmin, v0 * 1e-12, 1e-300) / v0) if vmin > 0 else -_LOG_SPAN
-                b = math.log(vmax / v0) if math.isfinite(vmax) else _LOG_SPAN
-                lo.append(max(a, -_LOG_SPAN) + 1e-9)
-                hi.append(min(b, _LOG_SPAN) - 1e-9)
-            else:
-                lo.append((vmin - v0) / scale + 1e-9)
-                hi.append((vmax - v0) / scale - 1e-9)
-        return np.array(lo), np.array(hi)
-
-    def values(self, z: ArrayLike) -> FloatArray:
-        z = np.asarray(z, dtype=float)
-        return np.where(self.log, self.v0 * np.exp(np.where(self.log, z, 0.0)),
-                        self.v0 + self.scale * z)
-
-    def params(self, z: ArrayLike) -> ClutchParams:
-        vals = self.values(z)
-        return self.base.updated({k: float(v) for k, v in zip(self.keys, vals)})
-
-    def simulate(self, params: ClutchParams) -> list[tuple[FloatArray, ...]]:
-        """Block-mean model outputs (torque, front and rear pressure) per segment."""
-        model = PackModel(params, transition=self.opts.transition)
-        out = []
-        for s in self.segments:
-            cols = np.empty((len(kernel.OUTPUT_COLUMNS), len(s)))
-            if simulate_columns(params, s.t, s.p, s.omega, s.temp, cols, model=model):
-                ys = (cols[0], cols[3], cols[4])  # torque, front and rear pressure
-                pack = (cols[2], cols[5], cols[6])  # mu, compression, temperature
-            else:
-                sim = simulate(params, s.t, s.p, s.omega, s.temp, model=model)
-                ys = (sim.torque, sim.front_pressure, sim.rear_pressure)
-                pack = (sim.mu, sim.compression, sim.lamella_temperature)
-            if params.drivetrain.enabled:  # the torque through the drivetrain compliance
-                ys = (comply(params, s.t, s.omega, ys[0], pack), ys[1], ys[2])
-            out.append(tuple(model_block_means(y, s.w) for y in ys))
-        return out
-
-    def residuals_parts(self, params: ClutchParams,
-                        record: dict[int, tuple[float, float]] | None = None,
-                        ) -> tuple[list[FloatArray], list[FloatArray]]:
-        """Torque residuals [N m] and P_diff residuals [Pa], one array per segment.
-
-        ``record``: a dict that receives the fitted front/rear disc gains per run (the final
-        evaluation's; the solver's evaluations, some of them in threads, record none).
-        """
-        torque_res: list[FloatArray] = []
-        pdiff_res: list[FloatArray] = []
-        rows: dict[int, list[tuple[int, FloatArray, FloatArray, FloatArray]]] = {}
-        for i, (s, (tq, front, rear)) in enumerate(zip(self.segments, self.simulate(params))):
-            ok = s.fit & np.isfinite(s.torque)
-            torque_res.append(s.torque[ok] - tq[ok])
-            pdiff_res.append(np.zeros(0))
-            if s.pdiff is not None and self.n_pdiff:
-                okp = s.fit & np.isfinite(s.pdiff)
-                if s.discs:
-                    rows.setdefault(s.run, []).append((i, s.pdiff[okp], front[okp], rear[okp]))
-                else:
-                    pdiff_res[i] = s.pdiff[okp] - (front[okp] - rear[okp])
-        for run, parts in rows.items():
-            meas = np.concatenate([p[1] for p in parts])
-            design = np.column_stack([np.concatenate([p[2] for p in parts]),
-                                      -np.concatenate([p[3] for p in parts])])
-            gains = np.ones(2)
-            if meas.size >= 2 and np.linalg.matrix_rank(design) == 2:
-                gains = np.linalg.lstsq(design, meas, rcond=None)[0]
-            if record is not None:
-                record[run] = (float(gains[0]), float(gains[1]))
-            for i, pd, front, rear in parts:
-                pdiff_res[i] = pd - (gains[0] * front - gains[1] * rear)
-        return torque_res, pdiff_res
-
-    def __call__(self, z: FloatArray) -> FloatArray:
-        with self._lock:
-            self.calls += 1
-        torque_res, pdiff_res = self.residuals_parts(self.params(z))
-        parts = torque_res + [r * (self.opts.pdiff_weight * self.torque_per_pa)
-                              for r in pdiff_res]
-        return np.concatenate(parts)
-
-
 def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
         fixed: Sequence[str] = (), free: Sequence[str] | None = None,
         options: FitOptions | None = None,
@@ -389,10 +229,10 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
     if start:
         params0 = params0.updated(dict(start))
     keys = list(free if free is not None else FREE_PARAMETERS[law])
-    unknown = [k for k in list(keys) + list(fixed) if k not in _TRANSFORM]
+    unknown = [k for k in list(keys) + list(fixed) if k not in TRANSFORM]
     if unknown:
         raise IdentificationError(f"cannot fit {', '.join(unknown)} (fittable: "
-                                  f"{', '.join(_TRANSFORM)})", unknown)
+                                  f"{', '.join(TRANSFORM)})", unknown)
     keys = [k for k in keys if k not in set(fixed)]
     if not keys:
         raise IdentificationError("every parameter is fixed: nothing to fit")
@@ -405,7 +245,7 @@ def fit(runs: Sequence[FitRun], law: str, base: ClutchParams, *,
         segments = select_segments(segments, opts, int(budget))
     if "friction.mu_ref" in keys:
         params0 = _scale_mu(params0, segments)
-    problem = _Problem(params0, keys, segments, opts)
+    problem = FitProblem(params0, keys, segments, opts)
     z0 = np.clip(np.zeros(len(keys)), problem.lower, problem.upper)
     # scipy.optimize takes ~0.7 s to import; loaded by a fit, not by everything that imports
     # this module (replay reports use RunEvaluation)

@@ -2,15 +2,16 @@
 
 Every one applies live (the node validates a change as a whole and applies it from the next
 tick, :mod:`clutch_ros.nodes.controller`). Every default of a control-law setting comes from
-:class:`clutch_ros.model.control.ControllerSettings` (written once, there; ``controller.rate``
-is ``1 / period``); :func:`controller_settings` turns the declared values back into settings
-(the model validates them and raises a ClutchError with its reason). The input timeouts
-and ``controller.use_adapted_model`` belong to the node alone and are written here.
+:class:`clutch_ros.model.controller_settings.ControllerSettings` (written once, there;
+``controller.rate`` is ``1 / period``); :func:`controller_settings` turns the declared values
+back into settings (the model validates them and raises a ClutchError with its reason). The
+input timeouts and ``controller.use_adapted_model`` belong to the node alone and are written
+here.
 """
 
 from __future__ import annotations
 
-from clutch_ros.model.control import ControllerSettings
+from clutch_ros.model.controller_settings import ControllerSettings
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM, ParamSpec
 
 __all__ = ["PARAMS", "RIG_TIMEOUT", "TIMEOUTS", "TRIGGERS", "WATCHDOG_FRACTION",

@@ -8,13 +8,11 @@ every ``c`` of the range (0.6 .. 1.4), from below; once learned (σ small) the s
 nothing. The closed loop on the rig's dynamics: tests/cli/test_closed_loop_first_step.py.
 """
 
-import math
 
 import pytest
 from numpy.testing import assert_allclose
 
-from clutch_ros.model.control import ControllerSettings
-from clutch_ros.model.errors import ModelError
+from clutch_ros.model.controller_settings import ControllerSettings
 from clutch_ros.model.inverse import capacity_scalar
 from tests.model.test_control_trim import FAST, TEMP, W10, _exact, _static_loop
 
@@ -53,11 +51,3 @@ def test_no_start_margin_without_a_measurement(flexiforce):
     s = ControllerSettings(**FAST)
     ctl, _ = _static_loop(flexiforce, s, REQUEST, 1.2, measured=False, std=PRIOR, idle=5)
     assert ctl.caution == 0.0 and ctl.spread == 0.0 and ctl.friction_scale == 1.0
-
-
-@pytest.mark.parametrize("name", ["uncertainty_range", "start_trim_delay"])
-def test_start_settings_must_not_be_negative(name):
-    with pytest.raises(ModelError, match=name):
-        ControllerSettings(**{name: -0.1})
-    with pytest.raises(ModelError, match=name):
-        ControllerSettings(**{name: math.nan})

@@ -15,8 +15,8 @@ from numpy.testing import assert_allclose
 from scipy.optimize import brentq
 
 from clutch_ros.model.adaptation import scaled_params
-from clutch_ros.model.control import ControllerSettings, TorqueController
-from clutch_ros.model.errors import ModelError
+from clutch_ros.model.control import TorqueController
+from clutch_ros.model.controller_settings import ControllerSettings
 from clutch_ros.model.inverse import capacity_scalar
 
 W10 = 10 * 2 * math.pi / 60  # [rad/s]
@@ -216,11 +216,6 @@ def test_caution_shrinks_with_the_std(flexiforce):
                                  idle=5)
         assert ctl.caution == pytest.approx(expected, abs=1e-12)
         assert ctl.friction_scale == pytest.approx(1.05 + expected)
-
-
-def test_uncertainty_margin_must_not_be_negative():
-    with pytest.raises(ModelError, match="uncertainty_margin"):
-        ControllerSettings(uncertainty_margin=-0.1)
 
 
 def test_a_late_ramp_sample_is_no_step_but_a_fast_change_is(flexiforce):

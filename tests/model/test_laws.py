@@ -16,7 +16,8 @@ import pytest
 from clutch_ros.model import errors, kernel, kernel_box, laws
 from clutch_ros.model.adaptation import GAIN_LAWS
 from clutch_ros.model.fit_data import SAMPLE_BUDGET
-from clutch_ros.model.identification import _TRANSFORM, FREE_PARAMETERS, initial_params
+from clutch_ros.model.fit_problem import TRANSFORM
+from clutch_ros.model.identification import FREE_PARAMETERS, initial_params
 from clutch_ros.model.params import PARAMETER_SPECS, PASSIVE_LAWS, SPLINE_LAWS, TABLE7
 from clutch_ros.model.simulate import simulate
 from clutch_ros.model.spline import SplineLaw
@@ -60,7 +61,7 @@ def test_registry_entries_are_consistent(flexiforce):
         assert info.kernel is not None
         kind, variant = info.kernel
         assert kind in KERNEL_KINDS and (kind != kernel_box.BOX or variant in BOX_VARIANTS)
-        assert info.free_parameters and set(info.free_parameters) <= set(_TRANSFORM)
+        assert info.free_parameters and set(info.free_parameters) <= set(TRANSFORM)
         assert set(info.free_parameters) <= set(PARAMETER_SPECS)
         assert {k for k, _ in info.start} <= set(info.free_parameters)
         assert info.sample_budget > 0

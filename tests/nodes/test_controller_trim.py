@@ -141,8 +141,8 @@ def _play(h, params, state):
 
 
 def test_declared_defaults_are_the_control_law_defaults():
-    """Each controller.* default is ControllerSettings' own (written once, model/control.py)."""
-    from clutch_ros.model.control import ControllerSettings
+    """Each controller.* default is ControllerSettings' own (written once, its own module)."""
+    from clutch_ros.model.controller_settings import ControllerSettings
     from clutch_ros.nodes.controller_params import PARAMS, controller_settings
 
     declared = {spec.name: spec.default for spec in PARAMS}

@@ -8,7 +8,8 @@ import pytest
 from clutch_ros.config.params_file import load_params
 from clutch_ros.config.presets import preset_path
 from clutch_ros.model import reference_torque
-from clutch_ros.model.control import ControllerSettings, TorqueController, command_pressure
+from clutch_ros.model.control import TorqueController, command_pressure
+from clutch_ros.model.controller_settings import ControllerSettings
 from clutch_ros.offline.closed_loop import run_closed_loop
 from clutch_ros.rig import RigPlant
 from clutch_ros.rig.request_profile import demo_profile
