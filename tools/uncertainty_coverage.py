@@ -90,6 +90,10 @@ def main() -> int:
                     default=unc.DEFAULTS.recent_time_constant,
                     help="low-pass time constant of the recent measured error [s]; 0: the "
                          "band without it (clutch_ros.model.uncertainty)")
+    ap.add_argument("--recent-mean-time-constant", type=float,
+                    default=unc.DEFAULTS.recent_mean_time_constant,
+                    help="low-pass time constant of the recent measured offset [s]; 0: the "
+                         "band without it (clutch_ros.model.recent_error)")
     ap.add_argument("--exclude", default="",
                     help="golden runs left out of the table (those the --params were fitted on)")
     ap.add_argument("--fit-on-plant", action="store_true",
@@ -119,7 +123,8 @@ def main() -> int:
     fitted = args.fit.split(",")
     skip = set(fitted) | set(filter(None, args.exclude.split(",")))
     base = replace(unc.DEFAULTS, time_constant=args.time_constant,
-                   recent_time_constant=args.recent_time_constant)
+                   recent_time_constant=args.recent_time_constant,
+                   recent_mean_time_constant=args.recent_mean_time_constant)
     rows = []
     runs = [] if args.no_golden else [(name, GOLDEN / name) for name in GOLDEN_RUNS
                                       if name not in skip]
@@ -172,12 +177,14 @@ def _print_cv(rows: list[dict], mode: str, args) -> int:
         return 0
     sys.stdout.write(f"band {mode}, leave one of {args.fit} out (fitted on the others)\n"
                      f"{'held-out run':32s} {'all':>6s} {'trans':>6s} {'steady':>6s} "
-                     f"{'nll':>7s}\n")
+                     f"{'nll':>7s} {'pred':>7s}\n")
     for r in rows:
         sys.stdout.write(f"{r['run']:32s} {100 * r['coverage_95']:6.1f} "
                          f"{100 * r['coverage_95_transient']:6.1f} "
-                         f"{100 * r['coverage_95_steady']:6.1f} {r['nll']:7.3f}\n")
-    sys.stdout.write(f"summed nll {sum(r['nll'] for r in rows):.4f}\n")
+                         f"{100 * r['coverage_95_steady']:6.1f} {r['nll']:7.3f} "
+                         f"{r['nll_predictive']:7.3f}\n")
+    sys.stdout.write(f"summed nll {sum(r['nll'] for r in rows):.4f} (of the published std), "
+                     f"{sum(r['nll_predictive'] for r in rows):.4f} (of the predictive)\n")
     return 0
 
 
