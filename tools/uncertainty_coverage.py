@@ -4,6 +4,7 @@
         [--sim-seeds 2] [--plant rig_truth_elastic] [--params flexiforce_8] [--no-golden]
         [--exclude run,...] [--fit-on-plant] [--write-fit-runs DIR] [--adapt [--adapt-gain]]
         [--band fixed|adapted|adapted_gain] [--file-band] [--cv]
+        [--recent-time-constant S] [--recent-mean-time-constant S]
 
 Runs: the golden bags (tests/data/golden/bags) and, with ``--sim-seeds N``, N fresh runs of
 the simulated rig (truth plant ``--plant``, default the golden bags' ``rig_truth_elastic``)
@@ -24,8 +25,11 @@ the error model is the one of the adapted estimate (``--band`` names the mode as
 the ``--params`` file (as ``clutch fit --band`` wrote it), in the mode its ``adapt.*`` say.
 ``--cv``: score the error model on the ``--fit`` runs only, each held out in turn and the model
 fitted on the others (:func:`clutch_ros.offline.band.cross_validate_band`; coverage and mean
-negative log-likelihood per held-out run), and list no other run: choices of the error model
-and of its fitting runs are made on this, never on the listed (unseen) runs' table.
+negative log-likelihood per held-out run: of the published std's zero-mean normal and of the
+residual's predictive, clutch_ros.model.recent_error), and list no other run: choices of the
+error model and of its fitting runs are made on this, never on the listed (unseen) runs'
+table. ``--recent-mean-time-constant 0 --recent-time-constant 1`` is the band before the recent
+offset (benchmarks/RESULTS.md, "torque band with the recent offset").
 
 The fitting set (``--fit``) is a choice, and every run in it leaves the table. The default
 runs of the issue-24 figure are ``table3_seq2_10rpm,table4_seq1``: the runs the estimator
