@@ -114,7 +114,7 @@ def central_half_widths(mean: np.ndarray, sd: np.ndarray) -> np.ndarray:
 
     a = np.abs(np.asarray(mean, dtype=float))
     sd = np.asarray(sd, dtype=float)
-    h = a + _Z95 * sd
+    h: np.ndarray = a + _Z95 * sd
     live = (a > 0.0) & (sd > 0.0)
     for _ in range(50):
         x1, x2 = (h[live] - a[live]) / sd[live], (h[live] + a[live]) / sd[live]
