@@ -35,19 +35,24 @@ parameter file under ``uncertainty.*`` (:data:`DEFAULTS` when absent).
 
 With a torque sensor the node knows how wrong the model has just been, and the model's error is
 mostly an offset held for seconds (a friction hysteresis after a pressure change, the same
-across noise seeds). With ``z = (measured - modelled) / sigma`` and ``E`` the low-pass
-(``recent_time_constant`` [s]) of ``z^2`` over the *previous* measured samples (1 before the
-first and after a gap above ``max_gap``; held up to ``max_gap`` while no measurement comes)::
+across noise seeds). With ``M`` the low-pass (``recent_mean_time_constant`` [s]) of the residual
+and ``E`` the low-pass (``recent_time_constant`` [s]) of the squared standardised innovation
+``((r - g M) / sigma)^2`` over the *previous* measured samples (:mod:`.recent_error`; ``M`` 0
+and ``E`` 1 before the first and after a gap above ``max_gap``; held while no measurement
+comes), ``g`` = ``recent_mean_weight``, the next residual is predicted as ``N(g M, v)``::
 
-    modelled_torque_std^2 = noise^2 + recent_scale^2 * (1 - recent_weight + recent_weight * E)
-                                      * (sigma^2 - noise^2)
+    v = noise^2 + recent_scale^2 * (1 - recent_weight + recent_weight * E) * (sigma^2 - noise^2)
 
-(the sensor's noise is white: the recent error scales the model terms only). Without a sensor
-``E`` stays 1. ``recent_weight`` [1] (0..1) is the Gaussian ML fit under the
-calibrated ``sigma``, ``recent_scale`` [1] a second calibration to 95 % (both when
-``base.recent_time_constant > 0``). The time constant is not fitted: the likelihood improves
-monotonically down to one sample (the band would copy the last residual); 1 s is
-``adapt.apply_interval`` (the adaptation moves the model at most once a second).
+(the sensor's noise is white: the recent error scales the model terms only) and
+``modelled_torque_std`` is ``sqrt(v)`` at ``g M = 0``, else the std of the zero-mean normal
+with the same central 95 % interval (:func:`.recent_error.central_half_width` / 1.96): a held,
+well-fitted offset gets a band just beyond it, not 1.96 times it. Without a sensor ``E`` stays
+1 and ``M`` 0. ``recent_mean_weight`` and ``recent_weight`` [1] (0..1) are the Gaussian ML fit
+of ``N(g M, v)`` under the calibrated ``sigma``, ``recent_scale`` [1] a second calibration to
+95 % within the band (when ``base.recent_time_constant > 0``; ``g`` = 0 when
+``base.recent_mean_time_constant`` is 0). The time constants are not fitted: 0.05 s and 0.5 s
+were chosen by leave-one-fitting-run-out cross-validation
+(:func:`clutch_ros.offline.band.cross_validate_band`; benchmarks/RESULTS.md).
 
 Phases (for :func:`coverage`): a sample is *transient* within ``TRANSIENT_WINDOW`` [s] after
 the actuating pressure moved faster than ``TRANSIENT_RATE`` of its run's range per second
@@ -66,6 +71,13 @@ from typing import Any
 import numpy as np
 
 from clutch_ros.model.errors import ModelError
+from clutch_ros.model.recent_error import (
+    RecentResidual,
+    central_half_width,
+    fit_recent,
+    recent_series,
+    smallest_scale,
+)
 
 __all__ = [
     "DEFAULTS", "QUIET_FRACTION", "ErrorModel", "TRANSIENT_RATE", "TRANSIENT_WINDOW",
@@ -111,6 +123,10 @@ class ErrorModel:
         recent_time_constant: low-pass time constant of the recent error [s], >= 0 (0:
             :func:`fit_error_model` leaves the recent error out).
         recent_scale: factor of the model terms (the second calibration) [1], > 0.
+        recent_mean_weight: weight ``g`` of the recent offset ``M`` in the band
+            (:mod:`clutch_ros.model.recent_error`) [1], 0..1 (0: the band of ``E`` alone).
+        recent_mean_time_constant: low-pass time constant of ``M`` [s], >= 0 (0:
+            :func:`fit_error_model` leaves ``M`` out, ``recent_mean_weight`` 0).
 
     """
 
@@ -125,13 +141,16 @@ class ErrorModel:
     rate_slip: float = 0.0
     slip_floor: float = 0.5
     recent_weight: float = 0.0
-    recent_time_constant: float = 1.0
+    recent_time_constant: float = 0.5
     recent_scale: float = 1.0
+    recent_mean_weight: float = 0.0
+    recent_mean_time_constant: float = 0.05
 
     def __post_init__(self) -> None:
-        if isinstance(self.recent_weight, (int, float)) and self.recent_weight > 1.0:
-            raise ModelError(f"{NAMESPACE}.recent_weight must be in [0, 1], got "
-                             f"{self.recent_weight!r}")
+        for name in ("recent_weight", "recent_mean_weight"):
+            value = getattr(self, name)
+            if isinstance(value, (int, float)) and value > 1.0:
+                raise ModelError(f"{NAMESPACE}.{name} must be in [0, 1], got {value!r}")
         for name, value in asdict(self).items():
             positive = name in ("time_constant", "stick_speed", "max_gap", "slip_floor",
                                 "recent_scale")
@@ -232,7 +251,10 @@ class TorqueStd:
         """Start with an empty filter."""
         self.model = model
         self._filter = _RateFilter(model)
-        self._recent = _RecentResidual(model)
+        self.predictive = (0.0, math.nan)
+        self._recent = RecentResidual(model.recent_time_constant,
+                                      model.recent_mean_time_constant,
+                                      model.recent_mean_weight, model.max_gap)
 
     def update(self, t: float, modelled: float, slip: float,
                measured: float = math.nan) -> float:
@@ -246,7 +268,11 @@ class TorqueStd:
         m = self.model
         gain = m.recent_scale ** 2 * (1.0 - m.recent_weight + m.recent_weight * self._recent.at(t))
         std = math.sqrt(m.noise ** 2 + gain * max(sigma * sigma - m.noise ** 2, 0.0))
-        self._recent.update(t, (measured - modelled) / sigma if sigma > 0.0 else math.nan)
+        offset = m.recent_mean_weight * self._recent.mean_at(t)
+        self.predictive = (offset, std)  # the residual predicted as N(offset, std^2)
+        if offset != 0.0:  # the zero-mean normal with the same central 95 % interval
+            std = central_half_width(offset, std) / Z95
+        self._recent.update(t, measured - modelled, sigma)
         return std
 
     def static(self, t: float, modelled: float, slip: float) -> float:
@@ -257,32 +283,6 @@ class TorqueStd:
         speed = abs(slip)
         stick = 1.0 if speed < self.model.stick_speed else 0.0
         return _sigma(self.model, abs(modelled), rate, stick, _lag(self.model, rate, speed))
-
-
-class _RecentResidual:
-    """The low-pass ``E`` of the squared standardised residual (module docstring)."""
-
-    def __init__(self, model: ErrorModel):
-        self.model = model
-        self.t = math.nan
-        self.value = 1.0
-
-    def at(self, t: float) -> float:
-        """Return ``E`` for a sample at ``t`` [s]: the prior 1 after a gap above ``max_gap``."""
-        dt = t - self.t
-        return self.value if not math.isfinite(self.t) or 0.0 <= dt <= self.model.max_gap \
-            else 1.0
-
-    def update(self, t: float, z: float) -> None:
-        if not math.isfinite(z):
-            return  # no measurement: E holds
-        dt = t - self.t
-        if not (math.isfinite(dt) and 0.0 < dt <= self.model.max_gap):
-            self.value = 1.0  # first sample, a gap or a step back: the prior
-            dt = 0.0
-        tc = self.model.recent_time_constant
-        self.value += (dt / (tc + dt) if tc > 0.0 else 1.0) * (z * z - self.value)
-        self.t = t
 
 
 def torque_std(model: ErrorModel, t: np.ndarray, modelled: np.ndarray,
@@ -321,7 +321,8 @@ def fit_error_model(t: np.ndarray, modelled: np.ndarray, measured: np.ndarray,
     coef = coef * k
     model = replace(base, noise=noise, base=float(coef[0]), rel=float(coef[1]),
                     rate_time=float(coef[2]), stick_rel=float(coef[3]),
-                    rate_slip=float(coef[4]), recent_weight=0.0, recent_scale=1.0)
+                    rate_slip=float(coef[4]), recent_weight=0.0, recent_scale=1.0,
+                    recent_mean_weight=0.0)
     if base.recent_time_constant > 0.0:
         model = _fit_recent(model, t, modelled, measured, slip)
     return model
@@ -329,18 +330,20 @@ def fit_error_model(t: np.ndarray, modelled: np.ndarray, measured: np.ndarray,
 
 def _fit_recent(model: ErrorModel, t: np.ndarray, modelled: np.ndarray, measured: np.ndarray,
                 slip: np.ndarray) -> ErrorModel:
-    """Fit ``recent_weight`` (ML) and ``recent_scale`` (95 %) under the fitted ``sigma``."""
+    """Fit ``recent_mean_weight``, ``recent_weight`` (ML) and ``recent_scale`` (95 %)."""
+    est = TorqueStd(model)
+    sigma = np.array([est.static(float(a), float(b), float(c))
+                      for a, b, c in zip(t, modelled, slip)], dtype=float)
+    resid = np.asarray(measured, dtype=float) - np.asarray(modelled, dtype=float)
+    if model.recent_mean_time_constant > 0.0:
+        g, w, scale = fit_recent(np.asarray(t, dtype=float), resid, sigma, model.noise,
+                                 model.recent_time_constant, model.recent_mean_time_constant,
+                                 model.max_gap)
+        return replace(model, recent_mean_weight=g, recent_weight=w, recent_scale=scale)
     from scipy.optimize import minimize_scalar  # loaded by fits only, as _max_likelihood
 
-    est = TorqueStd(model)
-    n = len(t)
-    sigma, recent = np.full(n, np.nan), np.full(n, np.nan)
-    resid = np.asarray(measured, dtype=float) - np.asarray(modelled, dtype=float)
-    for i in range(n):  # the node's loop: E before this sample's residual
-        sigma[i] = est.static(float(t[i]), float(modelled[i]), float(slip[i]))
-        recent[i] = est._recent.at(float(t[i]))
-        if sigma[i] > 0.0:
-            est._recent.update(float(t[i]), float(resid[i] / sigma[i]))
+    _, recent = recent_series(t, resid, sigma, model.recent_time_constant, 0.0, 0.0,
+                              model.max_gap)
     ok = np.isfinite(resid) & np.isfinite(sigma) & (sigma > 0.0)
     r2, e = resid[ok] ** 2, recent[ok]
     noise2 = model.noise ** 2
@@ -354,7 +357,8 @@ def _fit_recent(model: ErrorModel, t: np.ndarray, modelled: np.ndarray, measured
                               options={"xatol": 1e-9}).x)
     scale = _calibration(np.sqrt(r2) / Z95, noise2, (1.0 - w + w * e) * terms)
     scale = scale or 1.0  # 0: the noise alone holds 95 % (nothing to scale)
-    return replace(model, recent_weight=min(max(w, 0.0), 1.0), recent_scale=scale)
+    return replace(model, recent_weight=min(max(w, 0.0), 1.0), recent_scale=scale,
+                   recent_mean_weight=0.0)
 
 
 def sensor_noise(torque: np.ndarray, resid: np.ndarray) -> float:
@@ -411,13 +415,7 @@ def _calibration(ratio: np.ndarray, noise2: float, terms: np.ndarray) -> float:
 
     if inside(0.0) >= 0.95 or not np.any(terms > 0.0):
         return 0.0 if np.any(terms > 0.0) else 1.0
-    low, high = 0.0, 1.0
-    while inside(high) < 0.95:
-        low, high = high, 2.0 * high
-    for _ in range(60):  # bisection to ~1e-18 relative: deterministic
-        mid = 0.5 * (low + high)
-        low, high = (mid, high) if inside(mid) < 0.95 else (low, mid)
-    return high
+    return smallest_scale(inside, 60)  # bisection to ~1e-18 relative: deterministic
 
 
 def phases(t: np.ndarray, pressure: np.ndarray, slip: np.ndarray) -> np.ndarray:

@@ -44,6 +44,13 @@ UNCERTAINTY_PARAMS = [
     ParamSpec("uncertainty.recent_scale", _D.recent_scale, "factor of the model terms of "
               "modelled_torque_std (its calibration with the recent error)", "1", 1e-6, 1e3,
               read_only=True),
+    ParamSpec("uncertainty.recent_mean_weight", _D.recent_mean_weight, "weight of the recent "
+              "measured offset (low-pass of the residual) in modelled_torque_std: the band is "
+              "the central 95 % interval of the residual predicted around it; 0: none", "1",
+              0.0, 1.0, read_only=True),
+    ParamSpec("uncertainty.recent_mean_time_constant", _D.recent_mean_time_constant,
+              "low-pass time constant of the recent measured offset", "s", 0.0, 100.0,
+              read_only=True),
 ]
 
 

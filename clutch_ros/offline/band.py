@@ -120,12 +120,20 @@ def score_band(model: ErrorModel, series: dict[str, np.ndarray]) -> dict[str, An
     """Return the band's coverage and mean negative log-likelihood on one run.
 
     ``series`` is one :func:`replay_series`; the result is
-    :func:`~clutch_ros.model.uncertainty.coverage`'s dict and ``nll`` [nats per sample].
+    :func:`~clutch_ros.model.uncertainty.coverage`'s dict, ``nll`` [nats per sample] (of the
+    zero-mean normal of the published std) and ``nll_predictive`` (of the residual's predictive
+    ``N(g M, v)``, :mod:`clutch_ros.model.recent_error`; ``nll`` when ``g M`` is 0).
     """
     t, modelled, slip = series["t"], series["modelled"], series["slip"]
-    std = unc.torque_std(model, t, modelled, slip, series["measured"])
-    out = unc.coverage(series["measured"], modelled, std, unc.phases(t, series["pressure"], slip))
-    out["nll"] = unc.negative_log_likelihood(series["measured"], modelled, std)
+    measured = series["measured"]
+    est = unc.TorqueStd(model)
+    std, offset, spread = (np.full(len(t), np.nan) for _ in range(3))
+    for i in range(len(t)):  # torque_std's loop, keeping the predictive of each residual
+        std[i] = est.update(float(t[i]), float(modelled[i]), float(slip[i]), float(measured[i]))
+        offset[i], spread[i] = est.predictive
+    out = unc.coverage(measured, modelled, std, unc.phases(t, series["pressure"], slip))
+    out["nll"] = unc.negative_log_likelihood(measured, modelled, std)
+    out["nll_predictive"] = unc.negative_log_likelihood(measured, modelled + offset, spread)
     return out
 
 

@@ -5,7 +5,8 @@ does) and checked on other, unseen golden runs: the sensor-noise floor it identi
 from the model terms is the simulated rig's torque-sensor noise, and it holds the band where
 the clutch carries nothing on every unseen run (the in-sample fit alone put it at half the
 noise: ~12 % of those samples fell outside). The whole issue-24 bounds (90-98 % per run) are
-not met yet: benchmarks/RESULTS.md, "2026-11-27 torque band in quadrature".
+measured by tools/uncertainty_coverage.py: benchmarks/RESULTS.md, "torque band with the recent
+offset".
 """
 
 from pathlib import Path

@@ -64,6 +64,7 @@ def test_the_node_publishes_the_band_of_its_adapted_estimate(band_file, ros_env)
 
     params, model, path = band_file
     assert model.rate_slip > 0.0 and model.recent_weight > 0.0  # both live terms exercised
+    assert model.recent_mean_weight > 0.0  # and the recent offset (model/recent_error.py)
     messages = list(_messages(RUN))
     with node_process("estimator", ros_env, "--params-file", str(path),
                       "-p", "estimator.max_sample_age:=0.0") as proc, Harness() as h:
