@@ -93,7 +93,7 @@ def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_pat
     from clutch_msgs.msg import RigState
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from clutch_ros.nodes.qos import sensor_qos
+    from clutch_ros.nodes.qos import reliable_qos
 
     group, port = private_group()
     env = isolated_ros_env(int(os.environ["ROS_DOMAIN_ID"]))
@@ -106,8 +106,12 @@ def test_a_late_bridge_flags_only_what_the_bus_lacks_and_reports_its_lag(tmp_pat
                                       ("can_bridge", bus_params(group, port)))]
         try:
             with Harness("can_bridge_lag_test") as h:
+                # reliable and deep: the backlog a resumed bridge publishes in a burst must all
+                # reach the oracle (a best-effort reader of depth 5 in a process starved by a
+                # loaded machine dropped its oldest samples, the very ones stamped in a stop)
                 h.node.create_subscription(RigState, "rig_state",
-                                           lambda m: got.append((time.time(), m)), sensor_qos())
+                                           lambda m: got.append((time.time(), m)),
+                                           reliable_qos(1000))
                 diags = h.collect(DiagnosticArray, "/diagnostics", 50)
                 # waits are for data, not for time: a loaded machine publishes fewer samples
                 h.spin_until(lambda: stamp_span(got) > 1.0, 90.0, "1 s of rig_state")
