@@ -288,14 +288,17 @@ class PublishPacer:
         :meth:`on_frame` decides. The can_bridge asks it first for each trigger frame (up to
         1,000/s, of which ``rate`` publish), without the work a publication needs.
         """
-        if self.trigger is None:
+        if self.trigger is None or self._earned(now) >= 1.0:
             return False
-        tokens = self._tokens if self._last is None else min(
-            self.burst, self._tokens + max(0.0, now - self._last) * self.rate)
-        if tokens >= 1.0:
-            return False
-        self._tokens, self._last, self._flowing_since, self.pending = tokens, now, None, True
+        self._tokens, self._last, self._flowing_since, self.pending = (
+            self._earned(now), now, None, True)
         return True
+
+    def _earned(self, now: float) -> float:
+        """Return the tokens at ``now`` [s] (those left plus those accrued, at most ``burst``)."""
+        if self._last is None:
+            return self._tokens
+        return min(self.burst, self._tokens + max(0.0, now - self._last) * self.rate)
 
     def flush(self, now: float) -> bool:
         """Timer decision at ``now``: publish a pending frame (or, without trigger, any)."""
@@ -308,10 +311,7 @@ class PublishPacer:
 
     def take(self, now: float) -> bool:
         """Return True (and use a token) when a publication is allowed at ``now``."""
-        if self._last is not None:
-            self._tokens = min(self.burst,
-                               self._tokens + max(0.0, now - self._last) * self.rate)
-        self._last = now
+        self._tokens, self._last = self._earned(now), now
         if self._tokens < 1.0:
             return False
         self._tokens -= 1.0
