@@ -17,7 +17,13 @@ just before the cycle's frame, which then carries the newest admitted target
 cyclic CAN message, and the executor no longer wakes ~100 times a second for commands (each
 wake-up ~0.3 ms of CPU, ``python -m benchmarks.wakeup_probe``). On simulated time they stay
 executor callbacks and every admitted command is answered by a frame at once (lock-step,
-:mod:`clutch_ros.nodes.lockstep`), its report carrying the command's stamp.
+:mod:`clutch_ros.nodes.lockstep`), its report carrying the command's stamp. A report of a
+frame that answers no command (the periodic frame, a rate-limit step, the watchdog) carries,
+on simulated time, the stamp of the newest admitted command (its target is what the frame
+follows), or stamp 0 before the first, with both torques 0: the rig keys a tick's answer on
+(stamp, torques) of the command, and a periodic report stamped with the node clock matched
+a command of that tick with zero torques before the bridge had admitted it (a tick counted
+as answered while the bridge still refused commands from a publisher not yet in its graph).
 
 Admission (before the gate's own checks): commands while the node is not active and from a
 publisher other than ``pump.command_source`` are refused and counted (the cycle runs from
@@ -66,6 +72,7 @@ class PumpSender:
         self._node, self._state, self._on_stamp = node, state, on_stamp
         self._lock = threading.Lock()
         self._command = None  # the command admitted (its fields), reported with its frame
+        self._admitted_stamp = (0, 0)  # (sec, nanosec) of the newest admitted command
         # commands are read from, and reports written as, CDR bytes (no message object: the
         # rclpy conversions cost ~0.1 ms per command on the executor)
         codec = CdrCodec(PressureCommand)
@@ -189,8 +196,9 @@ class PumpSender:
         st.last_report = (out.pressure, out.reason)
         if command is not None and self.sim_time:  # the command's stamp (nodes/lockstep)
             sec, nanosec = command.header_stamp_sec, command.header_stamp_nanosec
-        elif self.sim_time:
-            sec, nanosec = divmod(self._node.get_clock().now().nanoseconds, 10**9)
+            self._admitted_stamp = (sec, nanosec)
+        elif self.sim_time:  # answers no command: the newest admitted one's (module doc)
+            sec, nanosec = self._admitted_stamp
         else:  # the ROS clock without use_sim_time is the system clock
             sec, nanosec = divmod(time.time_ns(), 10**9)
         applied = self._encode(sec, nanosec, "", float(out.pressure),

@@ -30,6 +30,13 @@ overhead on the hot path:
 
 Exceptions of callbacks propagate out of :meth:`spin_once` as with rclpy's executor; a context
 shut down (a signal) raises :class:`~rclpy.executors.ExternalShutdownException`.
+
+A signal: rclpy's signal thread first triggers every executor's SIGINT guard condition, then
+shuts the contexts down (rclpy's ``signal_handler.cpp``). A wait woken by the trigger can see
+the context still valid and wait again, with no timeout when nothing else is due: a node with
+no timer then never stops (bag_player, SIGTERM beside two busy processes: 4 of 30 stops hung
+until SIGKILL). So a wake-up by that guard condition waits, at most
+:data:`SIGNAL_SHUTDOWN_WAIT`, for the shutdown that follows it and ends the spin.
 """
 
 from __future__ import annotations
@@ -51,10 +58,12 @@ from rclpy.subscription import Subscription
 from rclpy.timer import TimerInfo
 from rclpy.utilities import timeout_sec_to_nsec
 
-__all__ = ["EVENT_POLL_PERIOD", "LeanExecutor"]
+__all__ = ["EVENT_POLL_PERIOD", "SIGNAL_SHUTDOWN_WAIT", "LeanExecutor"]
 
 #: [s] how often QoS event handlers join the wait (module docstring)
 EVENT_POLL_PERIOD = 0.5
+#: [s] wall: after a signal's guard condition, at most this for the context's shutdown
+SIGNAL_SHUTDOWN_WAIT = 2.0
 
 
 def _timer_info_arg(callback) -> str | None:
@@ -225,6 +234,8 @@ class LeanExecutor(SingleThreadedExecutor):
         if not self._context.ok():
             raise ExternalShutdownException()
         guards_ready = ws.get_ready_entities("guard_condition")
+        if self._sigint_gc is not None and self._sigint_gc.handle.pointer in guards_ready:
+            self._signalled()
         if self._guard is not None and self._guard.handle.pointer in guards_ready:
             self._wait_set = None  # entities changed (or a task was made): rebuild next time
         for gc, _node, _take in self._others:
@@ -254,6 +265,17 @@ class LeanExecutor(SingleThreadedExecutor):
                     clients_ready if take == self._take_client else services_ready)
             if ready:
                 self._run_task(entity, node, take)
+
+    def _signalled(self) -> None:
+        """Stop after a signal woke the wait, once rclpy's signal thread shut the context down.
+
+        Raises ExternalShutdownException once the context is shut down, or after
+        :data:`SIGNAL_SHUTDOWN_WAIT` regardless (the runner then shuts it down itself).
+        """
+        end = time.monotonic() + SIGNAL_SHUTDOWN_WAIT
+        while self._context.ok() and time.monotonic() < end:
+            time.sleep(0.001)
+        raise ExternalShutdownException()
 
     def _call_subscription(self, sub) -> None:
         try:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 
 import pytest
 import rclpy
@@ -14,7 +15,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSPolicyKind, QoSProfile, ReliabilityPolicy
 
-from clutch_ros.nodes.lean_executor import LeanExecutor
+from clutch_ros.nodes.lean_executor import EVENT_POLL_PERIOD, SIGNAL_SHUTDOWN_WAIT, LeanExecutor
 from clutch_ros.nodes.qos import sensor_qos
 from tests.nodes.rclpy_harness import Harness, rig_state
 
@@ -211,6 +212,40 @@ def test_qos_events_are_handled_although_they_join_the_wait_only_now_and_then():
     finally:
         rclpy.try_shutdown(context=context)
         thread.join(10.0)
+    assert not errors, errors
+    executor.shutdown()
+    node.destroy_node()
+
+
+class _Quiet(Node):
+    """A node with no timer (bag_player's kind): only a signal or a shutdown wakes its wait."""
+
+    def __init__(self, context):
+        super().__init__("lean_quiet_node", context=context)
+        self.pub = self.create_publisher(RigState, "rig_state_quiet", 10)
+
+
+def test_a_signal_stops_the_spin_although_the_shutdown_comes_after_the_wake_up():
+    """The signal thread of rclpy triggers the SIGINT guard condition, then shuts down.
+
+    Done here in that order, the shutdown 0.2 s later (a loaded machine): the spin must end,
+    although the wait that the trigger woke saw the context still valid. The shutdown is the
+    C-level one rclpy's signal thread makes (no Python on-shutdown callbacks, so nothing else
+    wakes the executor).
+    """
+    context, node, executor, thread, errors = _start(_Quiet)
+    try:
+        time.sleep(2 * EVENT_POLL_PERIOD)  # waiting with no timeout (QoS events included)
+        assert thread.is_alive()
+        executor._sigint_gc.trigger()  # as rclpy's signal thread, first
+        time.sleep(0.2)
+        context.handle.shutdown()  # then rclpy::shutdown_contexts()
+        thread.join(SIGNAL_SHUTDOWN_WAIT + 3.0)
+        stopped = not thread.is_alive()
+    finally:
+        rclpy.try_shutdown(context=context)
+        thread.join(10.0)
+    assert stopped, "the spin did not end after the signal's guard condition and shutdown"
     assert not errors, errors
     executor.shutdown()
     node.destroy_node()
