@@ -51,6 +51,8 @@ import time
 
 import numpy as np
 
+from benchmarks.machine_load import MachineLoad
+
 __all__ = ["main"]
 
 ECHO = "echo"
@@ -271,6 +273,8 @@ def main(argv=None) -> int:
              for ex in executors]
     rates = [float(r) for r in args.rates.split(",")]
     results = {}
+    load = MachineLoad()
+    load.start()
     print(f"{'node':38s} {'sustained':>10s}  per input rate: delivered, median/p99 latency [ms]")
     for name, cmd, topic, typ in rows:
         try:
@@ -289,6 +293,7 @@ def main(argv=None) -> int:
         share = results[name]["sustained_hz"] / echo if echo else float("nan")
         print(f"{name}: sustains {results[name]['sustained_hz']:.0f} Hz lossless, "
               f"{share:.2f} of the echo node's {echo:.0f} Hz")
+    print(load.stop().line())
     return 0
 
 

@@ -17,7 +17,8 @@ progress line) and when it ends (the line after it), and prints per node:
 and the chain's total (can_bridge + estimator + controller) against the budget, 0.25 core
 (issue 23). ``--one-process`` runs the chain as one process (``clutch demo --one-process``,
 as ``clutch up --one-process``): its row ``composed`` is the chain. ``--json`` prints the
-figures as JSON. Figures depend on machine load.
+figures as JSON. Figures depend on machine load: the last line says how much CPU other work
+on the machine took over the window (:mod:`benchmarks.machine_load`).
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+
+from benchmarks.machine_load import LoadFigures, MachineLoad
 
 __all__ = ["CHAIN", "NODES", "main", "node_pids", "read_cpu"]
 
@@ -153,10 +156,16 @@ def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool =
     echo = None
     marks: dict[str, tuple[float, int, dict[str, float | None]]] = {}
     pids: dict[str, int] = {}
+    load = MachineLoad()
+    machine = []
 
     def sample(mark: str) -> None:
         marks[mark] = (time.monotonic(), time.time_ns(),
                        {name: read_cpu(pid) for name, pid in pids.items()})
+        if mark == "start":
+            load.start()
+        else:
+            machine.append(load.stop())
 
     run.on_start = lambda: sample("start")
     run.on_end = lambda: sample("end")
@@ -207,6 +216,8 @@ def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool =
     chain = sum(nodes[name]["cpu_core"] for name in chain_names)
     return {"rig_time_s": rig_time, "rig_lost_time_s": lost, "nodes": nodes,
             "chain_core": chain, "budget_core": BUDGET, "within_budget": chain <= BUDGET,
+            "machine": {"busy_core": machine[0].busy, "outside_core": machine[0].outside,
+                        "steal_core": machine[0].steal},
             "demo": {k: summary.get(k) for k in ("steady_state_error", "within_10pct",
                                                   "worst_overshoot", "realtime")}}
 
@@ -236,6 +247,8 @@ def main(argv=None) -> int:
               f"{r['messages']} {r['topic']}")
     print(f"chain (bridge + estimator + controller): {res['chain_core']:.3f} core "
           f"(budget {BUDGET} core: {'met' if res['within_budget'] else 'NOT met'})")
+    m = res["machine"]
+    print(LoadFigures(m["busy_core"], m["outside_core"], m["steal_core"]).line())
     return 0
 
 

@@ -25,6 +25,10 @@ def test_bench_prints_every_node_per_second_and_per_message(capsys, tmp_path):
     assert math.isclose(res["chain_core"], chain)
     assert res["within_budget"] == (chain <= res["budget_core"])
     assert (tmp_path / "run" / "bag").is_dir()  # --keep keeps the demo's run directory
+    machine = res["machine"]  # what else ran on the machine (benchmarks/machine_load.py)
+    assert set(machine) == {"busy_core", "outside_core", "steal_core"}
+    assert 0.0 <= machine["outside_core"] <= machine["busy_core"] <= os.cpu_count() + 0.05
+    assert machine["busy_core"] >= chain - 0.05  # the chain ran on this machine, in the window
 
 
 def test_bench_one_process_measures_the_chain_as_one_process(capsys, tmp_path):

@@ -1,0 +1,96 @@
+"""What else used the machine while a benchmark ran: CPU outside the benchmark's processes.
+
+A CPU figure is only comparable with another one taken on an equally quiet machine: a busy
+loop left behind by an interrupted test run, or another tenant of the VM (``steal``), moves
+the bare echo node's figure by a third and the chain's with it. :class:`MachineLoad` reads the
+machine's busy time (``/proc/stat``: user, nice, system, irq, softirq, steal) and the CPU time
+of this process and all its descendants (``/proc/PID/stat``) at two marks, and reports, in
+cores over the window:
+
+* ``busy``: the whole machine;
+* ``outside``: the machine less this benchmark's process tree (other work on the machine;
+  processes of the tree that started or ended inside the window count as outside, so a
+  figure of a few hundredths is normal);
+* ``steal``: time the hypervisor gave to other guests.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["LoadFigures", "MachineLoad"]
+
+_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def _machine() -> tuple[float, float]:
+    """(busy, steal) CPU seconds of the whole machine since boot, from /proc/stat."""
+    fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
+    user, nice, system, _idle, _iowait, irq, softirq, steal = (int(v) for v in fields[:8])
+    return (user + nice + system + irq + softirq + steal) / _TICKS, steal / _TICKS
+
+
+def _tree() -> dict[int, float]:
+    """CPU seconds (utime + stime) of this process and each of its descendants, by pid."""
+    parents: dict[int, int] = {}
+    cpu: dict[int, float] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            text = (entry / "stat").read_text()
+        except OSError:
+            continue
+        fields = text[text.rindex(")") + 2:].split()  # after "pid (comm) "
+        pid = int(entry.name)
+        parents[pid] = int(fields[1])
+        cpu[pid] = (int(fields[11]) + int(fields[12])) / _TICKS
+    members = {os.getpid()}
+    grown = True
+    while grown:
+        grown = False
+        for pid, parent in parents.items():
+            if parent in members and pid not in members:
+                members.add(pid)
+                grown = True
+    return {pid: cpu[pid] for pid in members if pid in cpu}
+
+
+@dataclass(frozen=True)
+class LoadFigures:
+    """Machine load over a window [core] (module docstring)."""
+
+    busy: float
+    outside: float
+    steal: float
+
+    def line(self) -> str:
+        """One line for people."""
+        return (f"machine over the window: busy {self.busy:.3f} core, outside this "
+                f"benchmark's processes {self.outside:.3f} core, steal {self.steal:.3f} core")
+
+
+class MachineLoad:
+    """Marks the machine's and the benchmark's CPU at :meth:`start` and :meth:`stop`."""
+
+    def __init__(self) -> None:
+        self._start: tuple[float, tuple[float, float], dict[int, float]] | None = None
+
+    def start(self) -> None:
+        """Take the first mark."""
+        self._start = (time.monotonic(), _machine(), _tree())
+
+    def stop(self) -> LoadFigures:
+        """Take the second mark; return the figures over the window."""
+        if self._start is None:
+            raise RuntimeError("MachineLoad.stop before start")
+        t1, (busy1, steal1), tree1 = time.monotonic(), _machine(), _tree()
+        t0, (busy0, steal0), tree0 = self._start
+        seconds = max(t1 - t0, 1e-9)
+        own = sum(tree1[pid] - tree0[pid] for pid in tree1.keys() & tree0.keys())
+        return LoadFigures(busy=(busy1 - busy0) / seconds,
+                           outside=max(0.0, busy1 - busy0 - own) / seconds,
+                           steal=(steal1 - steal0) / seconds)
