@@ -35,7 +35,7 @@ import threading
 import time
 from pathlib import Path
 
-from benchmarks.machine_load import LoadFigures, MachineLoad
+from benchmarks.machine_load import LoadFigures, MachineLoad, process_table
 
 __all__ = ["CHAIN", "NODES", "main", "node_pids", "read_cpu"]
 
@@ -65,17 +65,7 @@ def read_cpu(pid: int) -> float | None:
 
 
 def _children(pid: int) -> list[int]:
-    out = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-        except OSError:
-            continue
-        if int(stat[stat.rindex(")") + 2:].split()[1]) == pid:
-            out.append(int(entry.name))
-    return out
+    return [child for child, (parent, _cpu) in process_table().items() if parent == pid]
 
 
 def node_pids(parent: int) -> dict[str, int]:

@@ -21,7 +21,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["LoadFigures", "MachineLoad"]
+__all__ = ["LoadFigures", "MachineLoad", "process_table"]
 
 _TICKS = os.sysconf("SC_CLK_TCK")
 
@@ -33,30 +33,33 @@ def _machine() -> tuple[float, float]:
     return (user + nice + system + irq + softirq + steal) / _TICKS, steal / _TICKS
 
 
-def _tree() -> dict[int, float]:
-    """CPU seconds (utime + stime) of this process and each of its descendants, by pid."""
-    parents: dict[int, int] = {}
-    cpu: dict[int, float] = {}
+def process_table() -> dict[int, tuple[int, float]]:
+    """Every process now: pid -> (parent pid, CPU seconds utime + stime), from /proc."""
+    table: dict[int, tuple[int, float]] = {}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
             continue
         try:
             text = (entry / "stat").read_text()
-        except OSError:
+        except OSError:  # (gone meanwhile)
             continue
         fields = text[text.rindex(")") + 2:].split()  # after "pid (comm) "
-        pid = int(entry.name)
-        parents[pid] = int(fields[1])
-        cpu[pid] = (int(fields[11]) + int(fields[12])) / _TICKS
+        table[int(entry.name)] = (int(fields[1]), (int(fields[11]) + int(fields[12])) / _TICKS)
+    return table
+
+
+def _tree() -> dict[int, float]:
+    """CPU seconds (utime + stime) of this process and each of its descendants, by pid."""
+    table = process_table()
     members = {os.getpid()}
     grown = True
     while grown:
         grown = False
-        for pid, parent in parents.items():
+        for pid, (parent, _cpu) in table.items():
             if parent in members and pid not in members:
                 members.add(pid)
                 grown = True
-    return {pid: cpu[pid] for pid in members if pid in cpu}
+    return {pid: table[pid][1] for pid in members if pid in table}
 
 
 @dataclass(frozen=True)
