@@ -3,14 +3,16 @@
 A CPU figure is only comparable with another one taken on an equally quiet machine: a busy
 loop left behind by an interrupted test run, or another tenant of the VM (``steal``), moves
 the bare echo node's figure by a third and the chain's with it. :class:`MachineLoad` reads the
-machine's busy time (``/proc/stat``: user, nice, system, irq, softirq, steal) and the CPU time
+machine's busy time (``/proc/stat``: user, nice, system, irq, softirq) and the CPU time
 of this process and all its descendants (``/proc/PID/stat``) at two marks, and reports, in
 cores over the window:
 
 * ``busy``: the whole machine;
-* ``outside``: the machine less this benchmark's process tree (other work on the machine;
-  processes of the tree that started or ended inside the window count as outside, so a
-  figure of a few hundredths is normal);
+* ``outside``: the machine less this benchmark's process tree (other work on the machine).
+  The tree's CPU is, at each mark, the sum over this process and its descendants of their
+  own and their waited-for children's CPU (``utime + stime + cutime + cstime``), so a
+  process of the tree that starts or ends inside the window is counted as the tree's
+  (once its parent has waited for it);
 * ``steal``: time the hypervisor gave to other guests.
 """
 
@@ -27,14 +29,20 @@ _TICKS = os.sysconf("SC_CLK_TCK")
 
 
 def _machine() -> tuple[float, float]:
-    """(busy, steal) CPU seconds of the whole machine since boot, from /proc/stat."""
+    """(busy, steal) CPU seconds of the whole machine since boot, from /proc/stat.
+
+    Busy: user, nice, system, irq, softirq (guest time is inside user); steal apart.
+    """
     fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]
     user, nice, system, _idle, _iowait, irq, softirq, steal = (int(v) for v in fields[:8])
-    return (user + nice + system + irq + softirq + steal) / _TICKS, steal / _TICKS
+    return (user + nice + system + irq + softirq) / _TICKS, steal / _TICKS
 
 
-def process_table() -> dict[int, tuple[int, float]]:
-    """Every process now: pid -> (parent pid, CPU seconds utime + stime), from /proc."""
+def process_table(children: bool = False) -> dict[int, tuple[int, float]]:
+    """Every process now: pid -> (parent pid, CPU seconds), from /proc.
+
+    CPU: ``utime + stime``; ``children``: plus ``cutime + cstime`` (its waited-for children's).
+    """
     table: dict[int, tuple[int, float]] = {}
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
@@ -44,13 +52,14 @@ def process_table() -> dict[int, tuple[int, float]]:
         except OSError:  # (gone meanwhile)
             continue
         fields = text[text.rindex(")") + 2:].split()  # after "pid (comm) "
-        table[int(entry.name)] = (int(fields[1]), (int(fields[11]) + int(fields[12])) / _TICKS)
+        ticks = sum(int(v) for v in fields[11:15 if children else 13])
+        table[int(entry.name)] = (int(fields[1]), ticks / _TICKS)
     return table
 
 
 def _tree() -> dict[int, float]:
-    """CPU seconds (utime + stime) of this process and each of its descendants, by pid."""
-    table = process_table()
+    """CPU seconds of this process and each descendant, with their waited-for children's."""
+    table = process_table(children=True)
     members = {os.getpid()}
     grown = True
     while grown:
@@ -93,7 +102,7 @@ class MachineLoad:
         t1, (busy1, steal1), tree1 = time.monotonic(), _machine(), _tree()
         t0, (busy0, steal0), tree0 = self._start
         seconds = max(t1 - t0, 1e-9)
-        own = sum(tree1[pid] - tree0[pid] for pid in tree1.keys() & tree0.keys())
+        own = sum(tree1.values()) - sum(tree0.values())
         return LoadFigures(busy=(busy1 - busy0) / seconds,
                            outside=max(0.0, busy1 - busy0 - own) / seconds,
                            steal=(steal1 - steal0) / seconds)
