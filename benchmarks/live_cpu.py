@@ -37,7 +37,7 @@ from pathlib import Path
 
 from benchmarks.machine_load import LoadFigures, MachineLoad, process_table
 
-__all__ = ["CHAIN", "NODES", "main", "node_pids", "read_cpu"]
+__all__ = ["CHAIN", "NODES", "DemoRun", "main", "node_pids", "read_cpu"]
 
 NODES = ("rig_sim", "can_bridge", "estimator", "controller")
 CHAIN = ("can_bridge", "estimator", "controller")
@@ -94,7 +94,7 @@ def _count_messages(bag: Path, start_ns: int, end_ns: int) -> dict[str, int]:
     return counts
 
 
-class _Run:
+class DemoRun:
     """The demo process, its stderr watched for the window's start and end."""
 
     def __init__(self, cmd: list[str], env: dict):
@@ -142,7 +142,7 @@ def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool =
     cmd = [sys.executable, "-m", "clutch_ros.cli", "demo", "--json", "--no-plots",
            "-o", str(output), *(["--quick"] if quick else []), *demo_args]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    run = _Run(cmd, env)
+    run = DemoRun(cmd, env)
     echo = None
     marks: dict[str, tuple[float, int, dict[str, float | None]]] = {}
     pids: dict[str, int] = {}
