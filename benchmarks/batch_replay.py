@@ -47,6 +47,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from benchmarks.bag_replay import generate_bag
+from benchmarks.machine_load import read_stat, stat_cpu
 from benchmarks.replay_process import ProcessRun, run_process
 
 __all__ = ["TARGET_RATIO", "main"]
@@ -82,14 +83,8 @@ _POLL_S = 0.005
 
 def _proc_cpu(pid: int) -> tuple[int, float] | None:
     """Return ``(parent pid, user + system CPU [s])`` of ``pid`` from /proc, None if gone."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            stat = f.read()
-    except OSError:
-        return None
-    fields = stat[stat.rindex(")") + 2:].split()  # after "pid (comm) "
-    tick = os.sysconf("SC_CLK_TCK")
-    return int(fields[1]), (int(fields[11]) + int(fields[12])) / tick
+    stat = read_stat(f"/proc/{pid}/stat")
+    return None if stat is None else (int(stat[1][1]), stat_cpu(stat[1]))
 
 
 def _children(pid: int) -> list[int]:

@@ -41,6 +41,7 @@ from types import SimpleNamespace
 from can.interfaces.udp_multicast.utils import pack_message
 
 from benchmarks.can_bridge_node import _ROOT, _percentile, _Ros, _say, _stop, private_run
+from benchmarks.machine_load import process_table
 from clutch_ros.canbus.bus import BusConfig, open_bus
 from clutch_ros.canbus.dbc import RigDatabase
 from clutch_ros.canbus.udp import receive_drops
@@ -152,26 +153,14 @@ def _bare(group: str, port: int) -> int:
 
 # -- the parent --------------------------------------------------------------------------------
 
-def _ticks(pid: int) -> int:
-    """Utime + stime [clock ticks] of ``pid`` and its descendants (0 when gone)."""
-    children: dict[int, list[int]] = {}
-    stats: dict[int, int] = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f"/proc/{entry}/stat") as fh:
-                text = fh.read()
-        except OSError:
-            continue
-        rest = text[text.rindex(")") + 2:].split()
-        children.setdefault(int(rest[1]), []).append(int(entry))
-        stats[int(entry)] = int(rest[11]) + int(rest[12])
-    total, todo = 0, [pid]
+def _cpu(pid: int) -> float:
+    """Utime + stime [s] of ``pid`` and its descendants (0 when gone)."""
+    table = process_table()
+    total, todo = 0.0, [pid]
     while todo:
         p = todo.pop()
-        total += stats.get(p, 0)
-        todo.extend(children.get(p, []))
+        total += table[p][1] if p in table else 0.0
+        todo.extend(child for child, (parent, _c) in table.items() if parent == p)
     return total
 
 
@@ -243,16 +232,16 @@ def run_sustained(rate: float = 8000.0, seconds: float = 60.0, bridge_rate: floa
                 raise RuntimeError(f"can_bridge did not start (log in {log_dir})")
             time.sleep(0.1)
         before = _report_after(ros, time.monotonic())
-        cpu0 = {"bridge": _ticks(bridge.pid), "bare": _ticks(bare.pid)}
+        cpu0 = {"bridge": _cpu(bridge.pid), "bare": _cpu(bare.pid)}
         ros.latencies, t0 = [], time.monotonic()
         sender.stdin.write("go\n")
         sender.stdin.flush()
         sent = json.loads(sender.stdout.readline())
         t1 = time.monotonic()
-        cpu1 = {"bridge": _ticks(bridge.pid), "bare": _ticks(bare.pid)}
+        cpu1 = {"bridge": _cpu(bridge.pid), "bare": _cpu(bare.pid)}
         after = _drained(ros, t1, before, sent["sent"])
         t2 = time.monotonic()
-        cpu2 = {"bridge": _ticks(bridge.pid), "bare": _ticks(bare.pid)}
+        cpu2 = {"bridge": _cpu(bridge.pid), "bare": _cpu(bare.pid)}
         latencies, ros.latencies = ros.latencies, None
         bare.stdin.write("stop\n")
         bare.stdin.flush()
@@ -263,13 +252,12 @@ def run_sustained(rate: float = 8000.0, seconds: float = 60.0, bridge_rate: floa
             if proc.poll() is None:
                 proc.kill()
         ros.close()
-    hz = os.sysconf("SC_CLK_TCK")
     send_s = t1 - t0
 
     def cores(name: str) -> dict:
-        return {"cores_while_sending": (cpu1[name] - cpu0[name]) / hz / send_s,
-                "cores_per_send_second": (cpu2[name] - cpu0[name]) / hz / send_s,
-                "cpu_us_per_frame": (cpu2[name] - cpu0[name]) / hz / sent["sent"] * 1e6}
+        return {"cores_while_sending": (cpu1[name] - cpu0[name]) / send_s,
+                "cores_per_send_second": (cpu2[name] - cpu0[name]) / send_s,
+                "cpu_us_per_frame": (cpu2[name] - cpu0[name]) / sent["sent"] * 1e6}
 
     d = {k: after[k] - before.get(k, 0.0) for k in after}
     # the kernel's count includes echoes of the bridge's own PumpRequests (sent, not removed)

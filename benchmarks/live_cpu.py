@@ -35,7 +35,13 @@ import threading
 import time
 from pathlib import Path
 
-from benchmarks.machine_load import LoadFigures, MachineLoad, process_table
+from benchmarks.machine_load import (
+    LoadFigures,
+    MachineLoad,
+    process_table,
+    read_stat,
+    stat_cpu,
+)
 
 __all__ = ["CHAIN", "NODES", "DemoRun", "main", "node_pids", "read_cpu"]
 
@@ -49,19 +55,14 @@ BUDGET = 0.25  # [core] can_bridge + estimator + controller, issue 23
 PER_MESSAGE_TOPIC = {"can_bridge": "/rig_state", "estimator": "/rig_state",
                      "controller": "/pressure_command", ECHO: "/rig_state",
                      "rig_sim": "/rig_state", "composed": "/rig_state"}
-_TICKS = os.sysconf("SC_CLK_TCK")
 #: the demo's progress line, ``[  0.0/48.0 s] request ...`` (not a node's ``[INFO] [...`` log)
 _PROGRESS = re.compile(r"\[\s*[\d.]+/[\d.]+ s\]")
 
 
 def read_cpu(pid: int) -> float | None:
     """Return ``utime + stime`` of process ``pid`` [s], or None when it is gone."""
-    try:
-        text = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    fields = text[text.rindex(")") + 2:].split()  # after "pid (comm) "
-    return (int(fields[11]) + int(fields[12])) / _TICKS  # utime, stime (fields 14, 15)
+    stat = read_stat(f"/proc/{pid}/stat")
+    return None if stat is None else stat_cpu(stat[1])
 
 
 def _children(pid: int) -> list[int]:

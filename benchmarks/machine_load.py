@@ -38,6 +38,27 @@ def _machine() -> tuple[float, float]:
     return (user + nice + system + irq + softirq) / _TICKS, steal / _TICKS
 
 
+def read_stat(path: str | Path) -> tuple[str, list[str]] | None:
+    """Return ``(comm, the fields after it)`` of a ``/proc/.../stat`` file, None when gone.
+
+    After ``comm``, field 1 is the parent pid and fields 11-14 ``utime``, ``stime``,
+    ``cutime``, ``cstime`` [clock ticks] (proc(5) fields 4, 14-17).
+    """
+    try:
+        text = Path(path).read_text()
+    except OSError:  # (gone meanwhile)
+        return None
+    return text[text.index("(") + 1:text.rindex(")")], text[text.rindex(")") + 2:].split()
+
+
+def stat_cpu(fields: list[str], children: bool = False) -> float:
+    """Return CPU seconds ``utime + stime`` of :func:`read_stat`'s fields.
+
+    ``children``: plus ``cutime + cstime`` (the waited-for children's).
+    """
+    return sum(int(v) for v in fields[11:15 if children else 13]) / _TICKS
+
+
 def process_table(children: bool = False) -> dict[int, tuple[int, float]]:
     """Every process now: pid -> (parent pid, CPU seconds), from /proc.
 
@@ -47,13 +68,9 @@ def process_table(children: bool = False) -> dict[int, tuple[int, float]]:
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
             continue
-        try:
-            text = (entry / "stat").read_text()
-        except OSError:  # (gone meanwhile)
-            continue
-        fields = text[text.rindex(")") + 2:].split()  # after "pid (comm) "
-        ticks = sum(int(v) for v in fields[11:15 if children else 13])
-        table[int(entry.name)] = (int(fields[1]), ticks / _TICKS)
+        stat = read_stat(entry / "stat")
+        if stat is not None:
+            table[int(entry.name)] = (int(stat[1][1]), stat_cpu(stat[1], children))
     return table
 
 

@@ -33,6 +33,8 @@ import threading
 import time
 from pathlib import Path
 
+from benchmarks.machine_load import read_stat, stat_cpu
+
 __all__ = ["ENV", "install", "parse_target", "result"]
 
 ENV = "CLUTCH_LIVE_PROFILE"  # JSON: {"node": ..., "targets": [...], "control": dir}
@@ -118,17 +120,12 @@ def _process_cpu() -> float:
 
 def _thread_cpu() -> dict[int, tuple[str, float]]:
     """Return ``{thread id: (name, CPU [s])}`` of this process's threads (``/proc``)."""
-    names = {t.native_id: t.name for t in threading.enumerate()}
-    ticks, out = os.sysconf("SC_CLK_TCK"), {}
+    names, out = {t.native_id: t.name for t in threading.enumerate()}, {}
     for task in Path("/proc/self/task").iterdir():
-        try:
-            stat = (task / "stat").read_text()
-        except OSError:
-            continue
-        fields = stat[stat.rindex(")") + 2:].split()
-        tid = int(task.name)
-        comm = stat[stat.index("(") + 1:stat.rindex(")")]
-        out[tid] = (names.get(tid, comm), (int(fields[11]) + int(fields[12])) / ticks)
+        stat = read_stat(task / "stat")
+        if stat is not None:
+            tid = int(task.name)
+            out[tid] = (names.get(tid, stat[0]), stat_cpu(stat[1]))
     return out
 
 
