@@ -39,6 +39,7 @@ import time
 import rclpy
 from clutch_msgs.srv import SetPaused
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
@@ -52,6 +53,8 @@ from clutch_ros.nodes.runner import run_node
 from clutch_ros.nodes.stamps import sec_to_stamp
 
 NAME = "bag_player"
+#: [s] at most this long, before exiting when done, for reliable readers to acknowledge
+ACK_WAIT = 5.0
 PARAMS = [
     ParamSpec("player.bag", "", "bag directory (or storage file) to play; required; read-only: "
               "the bag is opened and checked at start", read_only=True),
@@ -192,6 +195,10 @@ class BagPlayerNode(Node):
                    "rate": cfg["player.rate"], "topics": self._topics, "error": self.error}
         self.get_logger().info(f"player summary: {json.dumps(summary)}")
         if cfg["player.exit_when_done"] and not self._stop.is_set():
+            # a reliable reader may not have acknowledged the last messages yet (a busy
+            # machine): exiting now would lose them, so wait (bounded) for the acks first
+            for pub in self._pubs.values():
+                pub.wait_for_all_acked(Duration(seconds=ACK_WAIT))
             rclpy.try_shutdown()
 
     def _check(self, topic: str, bag_ns: int, data) -> None:
