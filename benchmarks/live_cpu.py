@@ -15,10 +15,14 @@ progress line) and when it ends (the line after it), and prints per node:
   controller (counted from the demo's bag within the window);
 
 and the chain's total (can_bridge + estimator + controller) against the budget, 0.25 core
-(issue 23). ``--one-process`` runs the chain as one process (``clutch demo --one-process``,
-as ``clutch up --one-process``): its row ``composed`` is the chain. ``--json`` prints the
-figures as JSON. Figures depend on machine load: the last line says how much CPU other work
-on the machine took over the window (:mod:`benchmarks.machine_load`).
+(issue 23). ``--skeleton`` also runs, beside the demo and in its domain under the namespace
+``/skeleton``, the chain's messages without its work (:mod:`benchmarks.chain_skeleton`: three
+bare rclpy processes with the chain's topics, types, QoS, rates and mechanisms) and prints
+their CPU as the chain's floor in rclpy and DDS. ``--one-process`` runs the chain as one
+process (``clutch demo --one-process``, as ``clutch up --one-process``): its row ``composed``
+is the chain. ``--json`` prints the figures as JSON. Figures depend on machine load: the
+last line says how much CPU other work on the machine took over the window
+(:mod:`benchmarks.machine_load`).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import json
 import math
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -50,6 +55,10 @@ CHAIN = ("can_bridge", "estimator", "controller")
 #: ``--one-process``: the chain runs as one process (``clutch demo --one-process``)
 ONE_PROCESS_NODES = ("rig_sim", "composed")
 ECHO = "echo (baseline)"
+SKELETON = tuple(f"skeleton {role}" for role in ("bridge", "estimator", "controller"))
+#: the topic each skeleton node publishes once per message it handles (its ``--report``)
+SKELETON_TOPIC = {"skeleton bridge": "rig_state", "skeleton estimator": "clutch_estimate",
+                  "skeleton controller": "pressure_command"}
 BUDGET = 0.25  # [core] can_bridge + estimator + controller, issue 23
 #: topic whose messages each node handles (per-message figure)
 PER_MESSAGE_TOPIC = {"can_bridge": "/rig_state", "estimator": "/rig_state",
@@ -131,11 +140,21 @@ class DemoRun:
                 self.ended.set()
 
 
-def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool = False) -> dict:
+def _skeleton_report(path: Path) -> dict | None:
+    """Return a skeleton node's ``--report``, or None when it wrote none."""
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool = False,
+            skeleton: bool = False) -> dict:
     """Run the demo with the echo node beside it; return the figures (module docstring).
 
     ``one_process``: the demo's ``--one-process``; the chain is then the one process
-    ``composed`` (its CPU is the chain's; per node it cannot be split).
+    ``composed`` (its CPU is the chain's; per node it cannot be split). ``skeleton``: the
+    chain's skeleton beside it too (:mod:`benchmarks.chain_skeleton`).
     """
     node_names = ONE_PROCESS_NODES if one_process else NODES
     chain_names = ("composed",) if one_process else CHAIN
@@ -144,7 +163,8 @@ def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool =
            "-o", str(output), *(["--quick"] if quick else []), *demo_args]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     run = DemoRun(cmd, env)
-    echo = None
+    extra: list[subprocess.Popen] = []  # the echo node and the skeleton's
+    side = Path(tempfile.mkdtemp(prefix="live_cpu-skeleton-"))  # the skeleton's reports
     marks: dict[str, tuple[float, int, dict[str, float | None]]] = {}
     pids: dict[str, int] = {}
     load = MachineLoad()
@@ -169,23 +189,34 @@ def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool =
                 pids.update(node_pids(run.proc.pid))
             time.sleep(0.05)
         echo_env = dict(env, ROS_DOMAIN_ID=run.domain, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-        echo = subprocess.Popen([sys.executable, "-m", "benchmarks.estimator_node", "echo"],
-                                env=echo_env, stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL)
-        pids[ECHO] = echo.pid
+        extra.append(subprocess.Popen([sys.executable, "-m", "benchmarks.estimator_node",
+                                       "echo"], env=echo_env, stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL))
+        pids[ECHO] = extra[-1].pid
+        for name in SKELETON if skeleton else ():
+            extra.append(subprocess.Popen(
+                [sys.executable, "-m", "benchmarks.chain_skeleton", name.split()[1],
+                 "--report", str(side / f"{name.replace(' ', '_')}.json"),
+                 "--ros-args", "-r", "__ns:=/skeleton"],
+                env=echo_env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            pids[name] = extra[-1].pid
         assert run.proc.stdout is not None
         stdout = run.proc.stdout.read()  # (stderr is the reader thread's)
         run.proc.wait(600)
         run.join()
     finally:
-        if echo is not None:
-            echo.terminate()
+        for proc in extra:
+            proc.terminate()
+        for proc in extra:
             try:
-                echo.wait(10)
+                proc.wait(10)
             except subprocess.TimeoutExpired:
-                echo.kill()
+                proc.kill()
         if run.proc.poll() is None:
             run.proc.kill()
+        reports = {name: _skeleton_report(side / f"{name.replace(' ', '_')}.json")
+                   for name in (SKELETON if skeleton else ())}
+        shutil.rmtree(side, ignore_errors=True)
     if run.proc.returncode != 0 or "start" not in marks or "end" not in marks:
         raise RuntimeError(f"the demo failed (exit {run.proc.returncode}):\n"
                            + "\n".join(run.lines[-20:]))
@@ -196,16 +227,29 @@ def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool =
     rig_time = (t1 - t0) - lost
     counts = _count_messages(Path(summary["bag"]), w0, w1)
     nodes = {}
-    for name in (*node_names, ECHO):
+    for name in (*node_names, ECHO, *(SKELETON if skeleton else ())):
         a, b = cpu0.get(name), cpu1.get(name)
         if a is None or b is None:
             raise RuntimeError(f"{name}: process gone before the end of the window")
-        n = counts.get(PER_MESSAGE_TOPIC[name], 0)
+        if name in SKELETON:  # its own count: its rate over its life, times the window
+            topic = f"/skeleton/{SKELETON_TOPIC[name]}"
+            report = reports[name]
+            if report is None:
+                raise RuntimeError(f"{name}: it left no report of its messages")
+            if report["ready"] > w0 * 1e-9:  # its start-up is no part of the floor
+                raise RuntimeError(f"{name}: its node was ready {report['ready'] - w0 * 1e-9:.1f}"
+                                   " s after the driven run had started")
+            n = round(report["published"][SKELETON_TOPIC[name]] / report["seconds"] * rig_time)
+        else:
+            topic = PER_MESSAGE_TOPIC[name]
+            n = counts.get(topic, 0)
         nodes[name] = {"pid": pids[name], "cpu_s": b - a, "cpu_core": (b - a) / rig_time,
-                       "messages": n, "topic": PER_MESSAGE_TOPIC[name],
+                       "messages": n, "topic": topic,
                        "cpu_per_message_ms": (b - a) / n * 1e3 if n else float("nan")}
     chain = sum(nodes[name]["cpu_core"] for name in chain_names)
-    return {"rig_time_s": rig_time, "rig_lost_time_s": lost, "nodes": nodes,
+    floor = sum(nodes[name]["cpu_core"] for name in SKELETON) if skeleton else None
+    return {"skeleton_core": floor, "rig_time_s": rig_time, "rig_lost_time_s": lost,
+            "nodes": nodes,
             "chain_core": chain, "budget_core": BUDGET, "within_budget": chain <= BUDGET,
             "machine": {"busy_core": machine[0].busy, "outside_core": machine[0].outside,
                         "steal_core": machine[0].steal},
@@ -221,13 +265,16 @@ def main(argv=None) -> int:
     parser.add_argument("--one-process", action="store_true",
                         help="bridge, estimator and controller in one process (clutch demo "
                              "--one-process); the chain row is that process")
+    parser.add_argument("--skeleton", action="store_true",
+                        help="also run the chain's messages without its work beside the demo "
+                             "(benchmarks.chain_skeleton) and print their CPU: the floor")
     parser.add_argument("--keep", help="run directory to keep (default: a temporary one)")
     parser.add_argument("--demo-arg", action="append", default=[],
                         help="extra argument for clutch demo (repeatable)")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="live_cpu-") as tmp:
         out = Path(args.keep) if args.keep else Path(tmp) / "demo"
-        res = measure(args.quick, out, args.demo_arg, args.one_process)
+        res = measure(args.quick, out, args.demo_arg, args.one_process, args.skeleton)
     if args.json:
         print(json.dumps(res, indent=2, sort_keys=True))
         return 0
@@ -238,6 +285,10 @@ def main(argv=None) -> int:
               f"{r['messages']} {r['topic']}")
     print(f"chain (bridge + estimator + controller): {res['chain_core']:.3f} core "
           f"(budget {BUDGET} core: {'met' if res['within_budget'] else 'NOT met'})")
+    if res["skeleton_core"] is not None:
+        print(f"skeleton (the chain's messages in bare rclpy, no work): "
+              f"{res['skeleton_core']:.3f} core; the chain's own work: "
+              f"{res['chain_core'] - res['skeleton_core']:.3f} core")
     m = res["machine"]
     print(LoadFigures(m["busy_core"], m["outside_core"], m["steal_core"]).line())
     return 0

@@ -3,7 +3,8 @@
 python-can hands every frame over as a :class:`can.Message` (on ``udp_multicast``: a select,
 a recvmsg, a msgpack dict and a checked ``Message`` per frame, behind two ``BusABC.recv``
 layers). At 8,000 frames/s that cost more CPU than the decoding. This module reads
-``udp_multicast`` datagrams straight from the socket, as many as are queued per wake-up, into
+``udp_multicast`` datagrams straight from the socket (one ``recvmsg`` system call each, on a
+duplicate of its descriptor: :class:`UdpBatchReader`), as many as are queued per wake-up, into
 :data:`RawFrame` tuples; :meth:`clutch_ros.canbus.bus.ReconnectingBus.recv_batch` uses it
 (other interfaces go through python-can's ``recv`` and :func:`message_frame`).
 
@@ -18,15 +19,17 @@ frames are ignored on a bus opened without FD, as python-can does.
 
 from __future__ import annotations
 
+import os
 import select
 import socket
 import struct
+import threading
 from typing import Any
 
 import can
 from can.interfaces.udp_multicast.utils import msgpack, unpack_message  # (None: not installed)
 
-__all__ = ["RawFrame", "UdpBatchReader", "frame_message", "message_frame"]
+__all__ = ["RawFrame", "ReaderSlot", "UdpBatchReader", "frame_message", "message_frame"]
 
 #: A frame: (bus time [s], identifier, is_extended, is_remote, is_error, is_fd, dlc, payload);
 #: the argument order of :meth:`clutch_ros.canbus.assembler.RigStateAssembler.feed_frame`.
@@ -63,10 +66,24 @@ class UdpBatchReader:
     def __init__(self, sock: socket.socket, fd: bool, max_buffer: int = 4096) -> None:
         self.sock, self.fd, self.max_buffer = sock, fd, max_buffer
         self._ancillary = socket.CMSG_SPACE(_TIMESPEC.size)
-        # python-can gives the socket a send timeout, and CPython then waits up to that long
-        # before any recvmsg, MSG_DONTWAIT or not: poll(0) says when the queue is empty
+        # python-can gives its socket a send timeout, and CPython then polls before every
+        # recvmsg on it (MSG_DONTWAIT or not), after a poll(0) of ours for an empty queue:
+        # three system calls per datagram. A duplicate of the descriptor in a socket object
+        # without a timeout reads a datagram in one: recvmsg(MSG_DONTWAIT) raises
+        # BlockingIOError when the queue is empty, whatever the shared descriptor's blocking
+        # flag (python-can's send may switch it), and the duplicate never changes that flag.
+        # It is this reader's own descriptor: :meth:`close` closes it.
+        self._own: socket.socket | None = socket.socket(fileno=os.dup(sock.fileno()))
+        if self._own.gettimeout() is not None:  # a default timeout set: the one-call path
+            self._own.close()  # is not available; the three-call one is
+            self._own = None
         self._poll = select.poll()
         self._poll.register(sock, select.POLLIN)
+
+    def close(self) -> None:
+        """Close this reader's duplicate of the socket (the bus's own stays as it is)."""
+        if self._own is not None:
+            self._own.close()
 
     @classmethod
     def for_bus(cls, bus: can.BusABC) -> UdpBatchReader | None:
@@ -89,20 +106,20 @@ class UdpBatchReader:
         when the socket fails before any frame was read (after: the frames read are returned,
         and the next call meets the failure).
         """
-        sock, out = self.sock, list[RawFrame]()
-        try:
-            ready, _, _ = select.select([sock], [], [], timeout)
+        sock, own, out = self.sock, self._own, list[RawFrame]()
+        try:  # (on this reader's own descriptor when it has one: valid while it reads)
+            ready, _, _ = select.select([own or sock], [], [], timeout)
         except OSError as exc:
             raise can.CanOperationError(f"Failed to wait for IP/UDP socket: {exc}") from exc
         if not ready:
             return out
-        recvmsg, size, anc, dontwait = (sock.recvmsg, self.max_buffer, self._ancillary,
-                                        socket.MSG_DONTWAIT)
+        recvmsg, size, anc, dontwait = ((own or sock).recvmsg, self.max_buffer,
+                                        self._ancillary, socket.MSG_DONTWAIT)
         assert msgpack is not None  # for_bus made no reader without it
         unpackb, keys, fd_ok = msgpack.unpackb, _KEYS, self.fd
         poll, more = self._poll.poll, False
         while len(out) < limit:
-            if more and not poll(0):
+            if more and own is None and not poll(0):
                 break
             more = True
             try:
@@ -136,6 +153,52 @@ class UdpBatchReader:
                 continue
             out.append(frame)
         return out
+
+
+class ReaderSlot:
+    """The :class:`UdpBatchReader` of a bus's current connection, closed when it changes.
+
+    One thread reads (``ReconnectingBus.recv_batch``, the can_bridge's receive thread),
+    holding :attr:`lock` while it does, so a reader's descriptor is never closed under a read.
+    ``batch``: False where every interface must take python-can's ``recv`` (no reader).
+    """
+
+    def __init__(self, batch: bool = True) -> None:
+        self.batch = batch
+        self.lock = threading.Lock()  # held by the reading thread while it reads
+        self.bus: can.BusABC | None = None
+        self.reader: UdpBatchReader | None = None
+
+    def reader_for(self, bus: can.BusABC | None) -> UdpBatchReader | None:
+        """Return the reader of ``bus`` (None: none can read it), made when the bus is new.
+
+        The previous bus's reader is closed first. Call with :attr:`lock` held.
+        """
+        if bus is not self.bus:
+            self._close()
+            if bus is not None and self.batch:
+                self.bus, self.reader = bus, UdpBatchReader.for_bus(bus)
+            else:
+                self.bus = bus
+        return self.reader if bus is not None else None
+
+    def close_idle(self) -> None:
+        """After the bus closed for good: close the reader now, or leave it to the reader.
+
+        The link is closed before either side calls this; the reading thread calls it after
+        releasing :attr:`lock`, so one of the two takes the lock after the close, and the
+        reader's socket closes.
+        """
+        if self.lock.acquire(blocking=False):
+            try:
+                self._close()
+            finally:
+                self.lock.release()
+
+    def _close(self) -> None:
+        reader, self.bus, self.reader = self.reader, None, None
+        if reader is not None:
+            reader.close()
 
 
 def _fast(stamp: float, d: dict[str, Any]) -> RawFrame | None:

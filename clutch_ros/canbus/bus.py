@@ -34,7 +34,7 @@ from typing import Any
 import can
 import can.interfaces
 
-from clutch_ros.canbus.batch import RawFrame, UdpBatchReader, message_frame
+from clutch_ros.canbus.batch import RawFrame, ReaderSlot, message_frame
 from clutch_ros.canbus.config import BusConfig, open_bus, parse_filters
 from clutch_ros.canbus.counters import RateLimiter, classify_socketcan_error
 from clutch_ros.canbus.errors import BusConfigError, BusUnavailable
@@ -182,7 +182,7 @@ class ReconnectingBus(can.BusABC):
         self._echo = EchoFilter() if drop_own_echo else None  # bus time: time.time
         self._lock = threading.RLock()
         self._bus: can.BusABC | None = None
-        self._reader: tuple[can.BusABC | None, UdpBatchReader | None] = (None, None)
+        self._readers = ReaderSlot(batch=not self._socketcan_errors)
         self._state = LinkState.CONNECTING
         self._reason = "not yet opened"
         now = clock()
@@ -345,10 +345,15 @@ class ReconnectingBus(can.BusABC):
         (:class:`~clutch_ros.canbus.batch.UdpBatchReader`); other interfaces use :meth:`recv`.
         Raises ``can.CanOperationError`` after :meth:`shutdown`, as :meth:`recv` does.
         """
+        with self._readers.lock:
+            frames = self._recv_batch(timeout, limit)
+        if self._state == LinkState.CLOSED:  # (after the release: ReaderSlot.close_idle)
+            self._readers.close_idle()
+        return frames
+
+    def _recv_batch(self, timeout: float | None, limit: int) -> list[RawFrame]:
         bus = self._current()
-        if bus is not None and self._reader[0] is not bus:
-            self._reader = (bus, None if self._socketcan_errors else UdpBatchReader.for_bus(bus))
-        reader = self._reader[1] if bus is not None else None
+        reader = self._readers.reader_for(bus)
         if bus is None or reader is None:
             out, msg = [], self.recv(timeout)
             while msg is not None:
@@ -487,6 +492,7 @@ class ReconnectingBus(can.BusABC):
             bus, self._bus = self._bus, None
             self._set_state(LinkState.CLOSED, "shut down", self._clock())
         self._wake.set()
+        self._readers.close_idle()
         if bus is not None:
             try:
                 bus.shutdown()

@@ -13,9 +13,13 @@ def test_read_cpu_of_this_process_and_of_none():
 
 
 def test_bench_prints_every_node_per_second_and_per_message(capsys, tmp_path):
-    assert bench.main(["--quick", "--json", "--keep", str(tmp_path / "run")]) == 0
+    """With the chain's skeleton beside it (--skeleton, benchmarks/chain_skeleton.py)."""
+    assert bench.main(["--quick", "--json", "--skeleton", "--keep", str(tmp_path / "run")]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert set(res["nodes"]) == {*bench.NODES, bench.ECHO}
+    assert set(res["nodes"]) == {*bench.NODES, bench.ECHO, *bench.SKELETON}
+    floor = sum(res["nodes"][n]["cpu_core"] for n in bench.SKELETON)
+    assert math.isclose(res["skeleton_core"], floor)
+    assert res["nodes"]["skeleton bridge"]["topic"] == "/skeleton/rig_state"
     assert res["rig_time_s"] > 10.0  # the quick profile's driven part
     for name, node in res["nodes"].items():
         assert node["messages"] > 0, name
@@ -36,6 +40,7 @@ def test_bench_one_process_measures_the_chain_as_one_process(capsys, tmp_path):
     assert bench.main(["--quick", "--json", "--one-process", "--keep", str(tmp_path / "r")]) == 0
     res = json.loads(capsys.readouterr().out)
     assert set(res["nodes"]) == {*bench.ONE_PROCESS_NODES, bench.ECHO}
+    assert res["skeleton_core"] is None  # (not asked for)
     composed = res["nodes"]["composed"]
     assert composed["messages"] > 0 and composed["cpu_core"] > 0.0
     assert math.isclose(res["chain_core"], composed["cpu_core"])

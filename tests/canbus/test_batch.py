@@ -1,5 +1,7 @@
 """recv_batch: the same frames, echoes and malformed counts as python-can's recv, in batches."""
 
+import os
+import threading
 import time
 import uuid
 
@@ -124,3 +126,75 @@ def test_a_send_timeout_on_the_socket_does_not_hold_a_batch_back():
         got = _read_all(lambda: bus.recv_batch(1.0), 1)
         assert [f[1] for f in got] == [0x100]
         assert time.monotonic() - start < 5.0  # not the socket's 10 s
+
+
+def _open_fds() -> int:
+    return len(os.listdir("/proc/self/fd"))
+
+
+def test_a_blocking_socket_never_holds_an_empty_batch():
+    """A send without timeout makes the shared descriptor blocking: reads must not block."""
+    group, port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
+    with ReconnectingBus(config) as bus, open_bus(config) as peer:
+        got = []
+        for timeout in (10.0, None):  # the socket's timeout 10 s, then none (blocking)
+            bus.send(can.Message(arbitration_id=0x80, is_extended_id=False, data=bytes(8)),
+                     timeout=timeout)
+            peer.send(FRAMES[0])
+            got += _read_all(lambda: bus.recv_batch(1.0), len(got) + 1)
+            reader = bus._readers.reader
+            assert reader is not None and reader._own is not None  # one recvmsg a datagram
+            done = threading.Event()
+            worker = threading.Thread(target=lambda ev=done: (bus.recv_batch(0.0), ev.set()),
+                                      daemon=True)
+            worker.start()  # nothing queued: returns at once, never waits on the socket
+            assert done.wait(5.0), "recv_batch blocked on an empty socket"
+        assert [f[1] for f in got] == [0x100, 0x100]
+
+
+@pytest.fixture
+def reading_bus():
+    """Yield a bus that has read a frame, its batch reader, and the open fds before it."""
+    group, port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
+    with open_bus(config) as peer:
+        before = _open_fds()
+        bus = ReconnectingBus(config)
+        peer.send(FRAMES[0])
+        assert [f[1] for f in _read_all(lambda: bus.recv_batch(1.0), 1)] == [0x100]
+        reader = bus._readers.reader  # (held here: closed, not merely collected)
+        assert reader is not None and reader._own is not None
+        yield bus, reader, before
+        bus.shutdown()
+
+
+def test_the_readers_own_socket_closes_with_the_bus(reading_bus):
+    bus, reader, before = reading_bus
+    bus.shutdown()  # no read in progress: closed at once
+    assert reader._own.fileno() == -1
+    assert _open_fds() == before
+    assert bus._readers.reader is None
+
+
+def test_a_shutdown_during_a_read_leaves_the_close_to_the_reader(reading_bus):
+    bus, reader, before = reading_bus
+    reading = threading.Thread(target=bus.recv_batch, args=(1.0,), daemon=True)
+    reading.start()  # waits up to 1 s for a datagram, the read lock held
+    time.sleep(0.2)
+    assert bus._readers.lock.locked()
+    bus.shutdown()  # cannot close under the read: the reading thread does after it
+    reading.join(5.0)
+    assert not reading.is_alive()
+    assert bus._readers.reader is None
+    assert reader._own.fileno() == -1
+    assert _open_fds() == before
+
+
+def test_a_reconnect_closes_the_old_readers_socket(reading_bus):
+    bus, reader, _ = reading_bus
+    bus._fail(bus._bus, "test: the link dropped")  # as a failed receive does
+    bus._next_attempt = 0.0  # reconnect at once (no back-off wait in a test)
+    bus.recv_batch(0.05)  # the receive thread's next call: a new bus, a new reader
+    assert reader._own.fileno() == -1
+    assert bus._readers.reader is not reader and bus._readers.reader is not None

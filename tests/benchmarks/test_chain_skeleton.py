@@ -1,0 +1,50 @@
+"""The chain's skeleton: three bare rclpy processes exchange the chain's messages over DDS."""
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from benchmarks import chain_skeleton as skeleton
+
+pytestmark = pytest.mark.ros
+
+
+def test_the_three_exchange_the_chains_messages(tmp_path):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(100 + os.getpid() % 100),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    procs = [subprocess.Popen([sys.executable, "-m", "benchmarks.chain_skeleton", role,
+                               "--report", str(tmp_path / f"{role}.json"),
+                               "--ros-args", "-r", "__ns:=/skeleton"],
+                              env=env, stderr=subprocess.PIPE, text=True)
+             for role in skeleton.ROLES]
+    try:
+        time.sleep(8.0)  # start-up, discovery, then a few seconds of traffic
+    finally:
+        for proc in procs:
+            proc.terminate()
+        errors = [proc.communicate(timeout=20)[1] for proc in procs]
+    assert [proc.returncode for proc in procs] == [0, 0, 0], errors
+    rep = {role: json.loads((tmp_path / f"{role}.json").read_text())
+           for role in skeleton.ROLES}
+    bridge, estimator = rep["bridge"]["published"], rep["estimator"]["published"]
+    assert set(bridge) == {"rig_state", "pump_request"}
+    assert set(rep["controller"]["published"]) == {"pressure_command"}
+    # the estimator answers the rig_state it received, once each: what the bridge sent, less
+    # the ones sent before it had matched (best-effort subscription)
+    assert 0 < estimator["clutch_estimate"] <= bridge["rig_state"]
+    assert bridge["pump_request"] > 0 and rep["controller"]["published"]["pressure_command"] > 0
+    for role, r in rep.items():
+        assert 0.0 < r["seconds"] < 30.0 and r["ready"] <= time.time(), role
+
+
+def test_help_and_a_bad_rate():
+    done = subprocess.run([sys.executable, "-m", "benchmarks.chain_skeleton", "--help"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "bridge" in done.stdout
+    with pytest.raises(SystemExit) as exc:
+        skeleton.main(["bridge", "--rig-rate", "0"])
+    assert exc.value.code == 2
