@@ -25,12 +25,14 @@ before any of its work, the part of the budget no change inside the nodes can re
 from __future__ import annotations
 
 import argparse
+import bisect
 import json
 import sys
+import threading
 import time
 from pathlib import Path
 
-__all__ = ["PUMP_PERIOD", "RIG_RATE", "ROLES", "STEP_PERIOD", "main"]
+__all__ = ["PUMP_PERIOD", "RIG_RATE", "ROLES", "STEP_PERIOD", "main", "published_between"]
 
 ROLES = ("bridge", "estimator", "controller")
 RIG_RATE = 108.0  # [Hz] rig_state in the demo (live_cpu counts it from the demo's bag)
@@ -40,6 +42,7 @@ LAMELLAS = 8  # per-lamella arrays of clutch_estimate (the flexiforce_8 preset)
 #: messages published per topic by this process (``--report``)
 PUBLISHED: dict[str, int] = {}
 READY = [float("nan")]  # [s] epoch at which the node was built (``--report``)
+SAMPLE_PERIOD = 0.5  # [s] between two samples of the counts (``--report``)
 
 
 def _messages() -> dict[str, bytes]:
@@ -156,21 +159,52 @@ def main(argv=None) -> int:
     parser.add_argument("--rig-rate", type=float, default=RIG_RATE,
                         help=f"rig_state publications per second [Hz] (bridge; default "
                              f"{RIG_RATE:g})")
-    parser.add_argument("--report", help="write the messages published per topic (JSON) "
-                                         "to this file at the end")
+    parser.add_argument("--report", help="write the messages published per topic (JSON), "
+                                         f"sampled every {SAMPLE_PERIOD:g} s, to this file "
+                                         "at the end")
     args = parser.parse_args(argv[:ros])
     if not args.rig_rate > 0.0:
         parser.error(f"--rig-rate must be > 0 Hz, got {args.rig_rate}")
     from clutch_ros.nodes.runner import run_node
 
     factory = _node_factory(args.role, args.rig_rate, PUBLISHED)
+    samples: list[tuple[float, dict[str, int]]] = []
+    stop = threading.Event()
+
+    def sample() -> None:  # the counts over time: a reader takes those of its own window
+        while not stop.wait(SAMPLE_PERIOD):
+            samples.append((time.time(), dict(PUBLISHED)))
+
+    threading.Thread(target=sample, name="skeleton_counts", daemon=True).start()
     code = run_node(f"skeleton_{args.role}", f"bare {args.role} of the chain", [], factory,
                     argv[ros:])
-    if args.report:  # what it published, so a reader sees that the rates were held
-        seconds = time.time() - READY[0]  # (NaN: the node was never built)
-        Path(args.report).write_text(json.dumps({"seconds": seconds, "ready": READY[0],
-                                                 "published": PUBLISHED}))
+    stop.set()
+    if args.report:
+        samples.append((time.time(), dict(PUBLISHED)))
+        Path(args.report).write_text(json.dumps({"ready": READY[0], "samples": samples}))
     return code
+
+
+def published_between(report: dict, start: float, end: float) -> dict[str, float]:
+    """Return the messages per topic a ``--report`` counts from ``start`` to ``end`` [s epoch].
+
+    Linear between its samples (every ``SAMPLE_PERIOD``); raises ValueError when the
+    samples do not cover the interval.
+    """
+    times = [t for t, _ in report["samples"]]
+    if not times or start < times[0] or end > times[-1]:
+        raise ValueError(f"the counts cover {times[0] if times else 'nothing'}"
+                         f"..{times[-1] if times else ''}, not {start}..{end}")
+
+    def at(when: float) -> dict[str, float]:
+        i = bisect.bisect_left(times, when)
+        (t1, c1) = report["samples"][i]
+        (t0, c0) = report["samples"][max(i - 1, 0)]
+        f = 0.0 if t1 == t0 else (when - t0) / (t1 - t0)
+        return {k: c0.get(k, 0) + f * (n - c0.get(k, 0)) for k, n in c1.items()}
+
+    first, last = at(start), at(end)
+    return {k: last[k] - first.get(k, 0.0) for k in last}
 
 
 if __name__ == "__main__":
