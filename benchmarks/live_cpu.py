@@ -17,9 +17,9 @@ progress line) and when it ends (the line after it), and prints per node:
 and the chain's total (can_bridge + estimator + controller) against the budget, 0.25 core
 (issue 23). ``--skeleton`` also runs, beside the demo and in its domain under the namespace
 ``/skeleton``, the chain's messages without its work (:mod:`benchmarks.chain_skeleton`: three
-bare rclpy processes with the chain's topics, types, QoS, rates and mechanisms) and prints
-their CPU, and their CPU per message at the chain's own message rates as the chain's floor
-in rclpy and DDS (under the demo's load their cycles skip late ticks, as the chain's do).
+bare rclpy processes with the chain's topics, types, QoS, rates, mechanisms and scheduling
+policy) and prints their CPU, and their CPU per message at the chain's own message rates as
+the chain's floor in rclpy and DDS (under load their cycles may skip late ticks).
 ``--one-process`` runs the chain as one process (``clutch demo --one-process``, as ``clutch
 up --one-process``): its row ``composed`` is the chain. ``--json`` prints the figures as
 JSON. Figures depend on machine load: the last line says how much CPU other work on the
@@ -49,6 +49,7 @@ from benchmarks.machine_load import (
     read_stat,
     stat_cpu,
 )
+from clutch_ros.cli.demo import RT_PRIORITY
 
 __all__ = ["CHAIN", "NODES", "DemoRun", "main", "node_pids", "read_cpu"]
 
@@ -199,10 +200,14 @@ def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool =
                                       stderr=subprocess.DEVNULL))
         pids[ECHO] = extra[-1].pid
         for name in SKELETON if skeleton else ():
+            # the scheduling of the node it stands for (the demo runs its nodes at SCHED_FIFO
+            # unless --no-realtime): at the normal policy the skeleton lost a third of its ticks
+            rt = [] if "--no-realtime" in demo_args else [
+                "-p", "rt.policy:=fifo", "-p", f"rt.priority:={RT_PRIORITY[SKELETON_OF[name]]}"]
             extra.append(subprocess.Popen(
                 [sys.executable, "-m", "benchmarks.chain_skeleton", name.split()[1],
                  "--report", str(side / f"{name.replace(' ', '_')}.json"),
-                 "--ros-args", "-r", "__ns:=/skeleton"],
+                 "--ros-args", "-r", "__ns:=/skeleton", *rt],
                 env=echo_env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
             pids[name] = extra[-1].pid
         assert run.proc.stdout is not None
