@@ -73,9 +73,13 @@ class UdpBatchReader:
         # BlockingIOError when the queue is empty, whatever the shared descriptor's blocking
         # flag (python-can's send may switch it), and the duplicate never changes that flag.
         # It is this reader's own descriptor: :meth:`close` closes it.
-        self._own: socket.socket | None = socket.socket(fileno=os.dup(sock.fileno()))
-        if self._own.gettimeout() is not None:  # a default timeout set: the one-call path
-            self._own.close()  # is not available; the three-call one is
+        self._own: socket.socket | None = None
+        try:
+            self._own = socket.socket(fileno=os.dup(sock.fileno()))
+        except OSError:  # (no descriptor left: the three-call path below)
+            pass
+        if self._own is not None and self._own.gettimeout() is not None:  # a default
+            self._own.close()  # timeout set: the one-call path is not available
             self._own = None
         self._poll = select.poll()
         self._poll.register(sock, select.POLLIN)

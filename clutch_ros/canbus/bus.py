@@ -345,11 +345,12 @@ class ReconnectingBus(can.BusABC):
         (:class:`~clutch_ros.canbus.batch.UdpBatchReader`); other interfaces use :meth:`recv`.
         Raises ``can.CanOperationError`` after :meth:`shutdown`, as :meth:`recv` does.
         """
-        with self._readers.lock:
-            frames = self._recv_batch(timeout, limit)
-        if self._state == LinkState.CLOSED:  # (after the release: ReaderSlot.close_idle)
-            self._readers.close_idle()
-        return frames
+        try:
+            with self._readers.lock:
+                return self._recv_batch(timeout, limit)
+        finally:
+            if self._state == LinkState.CLOSED:  # (after the release: ReaderSlot.close_idle)
+                self._readers.close_idle()
 
     def _recv_batch(self, timeout: float | None, limit: int) -> list[RawFrame]:
         bus = self._current()

@@ -198,3 +198,24 @@ def test_a_reconnect_closes_the_old_readers_socket(reading_bus):
     bus.recv_batch(0.05)  # the receive thread's next call: a new bus, a new reader
     assert reader._own.fileno() == -1
     assert bus._readers.reader is not reader and bus._readers.reader is not None
+
+
+def test_without_a_descriptor_to_spare_the_reader_polls_as_before(monkeypatch):
+    """os.dup failing (EMFILE) costs the one-call read, never the frames."""
+    import errno
+
+    from clutch_ros.canbus import batch
+
+    def no_dup(_fd):
+        raise OSError(errno.EMFILE, "Too many open files")
+
+    monkeypatch.setattr(batch.os, "dup", no_dup)
+    group, port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
+    with ReconnectingBus(config) as bus, open_bus(config) as peer:
+        for msg in FRAMES[:3]:
+            peer.send(msg)
+        got = _read_all(lambda: bus.recv_batch(0.5), 3)
+        assert bus._readers.reader is not None and bus._readers.reader._own is None
+        assert [_fields(f) for f in got] == [_fields(message_frame(m)) for m in FRAMES[:3]]
+        assert bus.recv_batch(0.05) == []
