@@ -69,7 +69,9 @@ def test_estimator_death_zeroes_pressure_and_restart_resumes(tmp_path):
             before = len(commands)
             h.spin_until(lambda: commands[-1].pressure == 0.0, 5.0, "0 Pa after the kill")
             seen_after = time.time() - killed_at  # [s] includes DDS delivery to this test
-            assert "stale estimate" in commands[-1].reason, commands[-1].reason
+            # a fail-safe: the dead estimator's, or (a loaded machine delaying the bridge too,
+            # seen beside two CPU hogs) stale rig data first; the estimator's is asserted below
+            assert commands[-1].reason.startswith("fail-safe: stale"), commands[-1].reason
             h.spin_for(1.0)
             assert all(c.pressure == 0.0 for c in commands[-20:])
             # The controller's reaction, read from its own stamps (node clock = system time):
@@ -78,9 +80,10 @@ def test_estimator_death_zeroes_pressure_and_restart_resumes(tmp_path):
             # not by when this process happened to receive the command, so that a loaded
             # machine delaying the delivery to the test does not count as the controller's.
             after = commands[before:]
-            first = next(c for c in after if "stale estimate" in c.reason)
+            first = next(c for c in after if c.reason.startswith("fail-safe: stale"))
             reacted = stamp_s(first) - killed_at
             assert reacted < ESTIMATE_TIMEOUT + 0.5, (reacted, seen_after, first.reason)
+            assert any("stale estimate" in c.reason for c in after), [c.reason for c in after]
             late = [(stamp_s(c) - killed_at, c.pressure) for c in after
                     if c.pressure > 0.0 and stamp_s(c) - killed_at >= ESTIMATE_TIMEOUT + 0.5]
             assert not late, late
