@@ -58,13 +58,12 @@ CHAIN = ("can_bridge", "estimator", "controller")
 #: ``--one-process``: the chain runs as one process (``clutch demo --one-process``)
 ONE_PROCESS_NODES = ("rig_sim", "composed")
 ECHO = "echo (baseline)"
-SKELETON = tuple(f"skeleton {role}" for role in ("bridge", "estimator", "controller"))
-#: the topic each skeleton node publishes once per message it handles (its ``--report``)
-#: the chain's node each skeleton node stands for
-SKELETON_OF = {"skeleton bridge": "can_bridge", "skeleton estimator": "estimator",
-               "skeleton controller": "controller"}
-SKELETON_TOPIC = {"skeleton bridge": "rig_state", "skeleton estimator": "clutch_estimate",
-                  "skeleton controller": "pressure_command"}
+#: ``--skeleton``: per skeleton node (benchmarks.chain_skeleton role), the chain's node it
+#: stands for and the topic it publishes once per message it handles (its ``--report``)
+SKELETON_OF = {"skeleton bridge": ("can_bridge", "rig_state"),
+               "skeleton estimator": ("estimator", "clutch_estimate"),
+               "skeleton controller": ("controller", "pressure_command")}
+SKELETON = tuple(SKELETON_OF)
 BUDGET = 0.25  # [core] can_bridge + estimator + controller, issue 23
 #: topic whose messages each node handles (per-message figure)
 PER_MESSAGE_TOPIC = {"can_bridge": "/rig_state", "estimator": "/rig_state",
@@ -203,7 +202,7 @@ def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool =
             # the scheduling of the node it stands for (the demo runs its nodes at SCHED_FIFO
             # unless --no-realtime): at the normal policy the skeleton lost a third of its ticks
             rt = [] if "--no-realtime" in demo_args else [
-                "-p", "rt.policy:=fifo", "-p", f"rt.priority:={RT_PRIORITY[SKELETON_OF[name]]}"]
+                "-p", "rt.policy:=fifo", "-p", f"rt.priority:={RT_PRIORITY[SKELETON_OF[name][0]]}"]
             extra.append(subprocess.Popen(
                 [sys.executable, "-m", "benchmarks.chain_skeleton", name.split()[1],
                  "--report", str(side / f"{name.replace(' ', '_')}.json"),
@@ -241,15 +240,15 @@ def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool =
         a, b = cpu0.get(name), cpu1.get(name)
         if a is None or b is None:
             raise RuntimeError(f"{name}: process gone before the end of the window")
-        if name in SKELETON:  # its own count: its rate over its life, times the window
-            topic = f"/skeleton/{SKELETON_TOPIC[name]}"
+        if name in SKELETON:  # its own count within the window (its sampled counts)
+            topic = f"/skeleton/{SKELETON_OF[name][1]}"
             report = reports[name]
             if report is None:
                 raise RuntimeError(f"{name}: it left no report of its messages")
             if report["ready"] > w0 * 1e-9:  # its start-up is no part of the floor
                 raise RuntimeError(f"{name}: its node was ready {report['ready'] - w0 * 1e-9:.1f}"
                                    " s after the driven run had started")
-            n = round(published_between(report, w0 * 1e-9, w1 * 1e-9)[SKELETON_TOPIC[name]])
+            n = round(published_between(report, w0 * 1e-9, w1 * 1e-9)[SKELETON_OF[name][1]])
         else:
             topic = PER_MESSAGE_TOPIC[name]
             n = counts.get(topic, 0)
@@ -261,7 +260,7 @@ def measure(quick: bool, output: Path, demo_args: list[str], one_process: bool =
     # the skeleton's CPU per message at the chain's own message rates (under load its cycles
     # skip late ticks; the per-message cost is what the chain's messages would cost)
     floor_at_rates = sum(nodes[skel]["cpu_per_message_ms"] * 1e-3 * nodes[real]["messages"]
-                         / rig_time for skel, real in SKELETON_OF.items()
+                         / rig_time for skel, (real, _topic) in SKELETON_OF.items()
                          if real in nodes) if skeleton and not one_process else None
     return {"skeleton_core": floor, "skeleton_at_chain_rates_core": floor_at_rates,
             "rig_time_s": rig_time, "rig_lost_time_s": lost, "nodes": nodes,
