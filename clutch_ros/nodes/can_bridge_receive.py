@@ -112,6 +112,36 @@ class ReceiveSide:
     def _on_frames(self, frames: list[RawFrame]) -> None:
         """Receive thread: frames -> live sample -> (pacer) -> rig_state when active.
 
+        With the compiled intake (``bridge.compiled``, :mod:`clutch_ros.canbus.intake`) its
+        kernel takes the runs of clean rig frames, publishing where the pacer says; each
+        other frame goes through :meth:`_feed_frames`, as every frame does without it.
+        """
+        st = self.state
+        intake, pacer = st.intake, st.pacer
+        cols = intake.columns(frames) if intake is not None and intake.ready else None
+        if intake is None or cols is None:
+            self._feed_frames(frames)
+            return
+        assert pacer is not None  # configured with the intake
+        i, n = 0, len(frames)
+        while i < n:
+            try:
+                with self._lock:  # (the pacer's, as in _feed_frames; see _halt)
+                    i, key = intake.run(cols, i, st.active)
+            except Exception as err:  # noqa: BLE001 - nothing was taken: the Python path
+                assert st.assembler is not None
+                st.assembler.on_error(err)
+                self._feed_frames(frames[i:])
+                return
+            if key >= 0:
+                self._publish_latest(pacer.on_frame, key, bus_time=True)
+            elif i < n:  # no clean rig frame: the Python path, then the kernel again
+                self._feed_frames(frames[i:i + 1])
+                i += 1
+
+    def _feed_frames(self, frames: list[RawFrame]) -> None:
+        """Frames -> live sample -> (pacer) -> rig_state when active, in Python.
+
         A batch at a time: what stays the same from configure to cleanup is looked up once.
         """
         st = self.state
