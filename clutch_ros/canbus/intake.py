@@ -32,6 +32,7 @@ import math
 import os
 import threading
 from collections.abc import Callable, Collection, Sequence
+from types import ModuleType
 from typing import Any, NamedTuple, cast
 
 import numpy as np
@@ -42,7 +43,8 @@ from clutch_ros.canbus.batch import RawFrame
 from clutch_ros.canbus.counters import PublishPacer
 from clutch_ros.canbus.dbc import crc8_table
 
-__all__ = ["Columns", "CompiledIntake", "columns", "unavailable_reason", "warm_up"]
+__all__ = ["Columns", "CompiledIntake", "columns", "compiled_functions", "compress", "frame_at",
+           "unavailable_reason", "warm_up"]
 
 _log = logging.getLogger(__name__)
 _LOCK = threading.Lock()
@@ -94,28 +96,57 @@ def unavailable_reason() -> str | None:
     return reason
 
 
-def _compiled() -> Callable[..., tuple[int, int, int]] | None:
-    """Return the compiled :func:`~clutch_ros.canbus.intake_kernel.scan` (None: unavailable)."""
+def compiled_functions(module: ModuleType, names: Sequence[str],
+                       warm_up: Callable[[Callable[..., Any]], None]) -> Callable[..., Any] | None:
+    """Compile ``module``'s functions ``names`` with numba; return the last, or None.
+
+    Callees first: each is replaced in the module by its compiled self, so the functions
+    that call it compile against it. ``warm_up(last)`` calls it once, so numba compiles it
+    (or loads it from its cache, ``cache=True``) now. None, with the reason logged once and
+    kept in :func:`unavailable_reason`, when numba is missing or any step fails.
+    """
     with _LOCK:
-        if _state["scan"] is not None or _state["reason"] is not None:
-            return cast("Callable[..., tuple[int, int, int]] | None", _state["scan"])
+        if _state["reason"] is not None:
+            return None
         from clutch_ros.model.kernel import numba_cache_dir
         os.environ.setdefault("NUMBA_CACHE_DIR", numba_cache_dir())
         try:
             import numba
 
             jit = numba.njit(cache=True, nogil=True)
-            for name in kern.LOOP_FUNCTIONS:  # compiled where they live (their globals)
-                func = getattr(kern, name)
+            for name in names:  # compiled where they live (their globals)
+                func = getattr(module, name)
                 if not hasattr(func, "py_func"):
-                    setattr(kern, name, jit(func))
-            _warm_up(kern.scan)  # numba compiles (or loads from its cache) at the first call
+                    setattr(module, name, jit(func))
+            last: Callable[..., Any] = getattr(module, names[-1])
+            warm_up(last)
         except Exception as err:  # noqa: BLE001 - any failure means: the Python path
             _state["reason"] = f"numba unavailable ({type(err).__name__}: {err})"
             _log.warning("compiled CAN intake: %s; Python path", _state["reason"])
             return None
-        _state["scan"] = kern.scan
-        return cast("Callable[..., tuple[int, int, int]]", kern.scan)
+        return last
+
+
+def _compiled() -> Callable[..., tuple[int, int, int]] | None:
+    """Return the compiled :func:`~clutch_ros.canbus.intake_kernel.scan` (None: unavailable)."""
+    if _state["scan"] is None and _state["reason"] is None:
+        _state["scan"] = compiled_functions(kern, kern.LOOP_FUNCTIONS, _warm_up)
+    return cast("Callable[..., tuple[int, int, int]] | None", _state["scan"])
+
+
+def compress(cols: Columns, keep: np.ndarray) -> Columns | None:
+    """Return the frames of ``cols`` where ``keep`` is True (None: none)."""
+    if not keep.any():
+        return None
+    return Columns(*(c[keep] for c in cols[:8]), cols.data, cols.offset[keep])
+
+
+def frame_at(cols: Columns, i: int) -> RawFrame:
+    """Return frame ``i`` of ``cols`` as a :data:`~clutch_ros.canbus.batch.RawFrame`."""
+    start = int(cols.offset[i])
+    return (float(cols.stamp[i]), int(cols.ident[i]), bool(cols.ext[i]), bool(cols.remote[i]),
+            bool(cols.error[i]), bool(cols.fd[i]), int(cols.dlc[i]),
+            cols.data[start:start + int(cols.size[i])].tobytes())
 
 
 def warm_up() -> str | None:
@@ -125,6 +156,9 @@ def warm_up() -> str | None:
     compiled code instead of compiling for seconds beside its receive thread.
     """
     _compiled()
+    from clutch_ros.canbus.udp_columns import available  # (it imports this module)
+
+    available()
     return unavailable_reason()
 
 

@@ -110,6 +110,15 @@ def receive_drops(bus: can.BusABC) -> int | None:
 MALFORMED_REASONS = ("not_msgpack", "invalid_frame", "not_a_frame")
 
 
+class PayloadTooLongError(ValueError):
+    """A datagram's ``data`` is a count of bytes above 64 (python-can would allocate it).
+
+    ``can.Message(data=n)`` makes ``bytearray(n)``: a 20-byte datagram with ``data`` = 2**33
+    made the receiving process allocate 8 GiB before the frame check refused it. No CAN
+    frame carries more than 64 bytes, so such a datagram is an invalid frame at once.
+    """
+
+
 def malformed_reason(err: BaseException) -> str | None:
     """Return why a received datagram was no valid frame, or None for a transport failure.
 
@@ -125,6 +134,8 @@ def malformed_reason(err: BaseException) -> str | None:
     cause = err.__cause__
     if cause is None or isinstance(cause, (OSError, can.CanError)):
         return None
+    if isinstance(cause, PayloadTooLongError):
+        return "invalid_frame"
     if _raised_in_can_message(cause):  # can.Message(check=True) rejected the fields
         return "invalid_frame" if isinstance(cause, ValueError) else "not_a_frame"
     if isinstance(cause, ValueError) or type(cause).__module__.split(".")[0] == "msgpack":
