@@ -44,7 +44,6 @@ _MMSGHDR = np.dtype({"names": ["name", "namelen", "iov", "iovlen", "control", "c
                      "offsets": [0, 8, 16, 24, 32, 40, 48, 56], "itemsize": 64})
 _IOVEC = np.dtype({"names": ["base", "len"], "formats": ["<u8", "<u8"], "itemsize": 16})
 _CONTROL = 32  # CMSG_SPACE(sizeof(struct timespec)): what UdpBatchReader asks for too
-_MSG_TRUNC = 0x20
 _LOCK = threading.Lock()
 _state: dict[str, Any] = {"parse": None, "recvmmsg": None, "tried": False}
 
@@ -89,7 +88,13 @@ class ColumnReader:
         self._hdr = np.zeros(capacity, _MMSGHDR)
         self._hdr["iov"] = self._iov.ctypes.data + _IOVEC.itemsize * np.arange(capacity)
         self._hdr["iovlen"] = 1
+        self._hdr_address = self._hdr.ctypes.data
         self._hdr["control"] = self._ctrl.ctypes.data + _CONTROL * np.arange(capacity)
+        self._hdr["controllen"] = _CONTROL
+        # views of the fields the kernel writes (msg_len, controllen, flags) and parse reads
+        # and resets (controllen, flags) for the next call
+        self._lens, self._ctrl_lens, self._flags = (self._hdr["msg_len"],
+                                                    self._hdr["controllen"], self._hdr["flags"])
         n = capacity
         self._cols = Columns(np.zeros(n), np.zeros(n, np.int64), np.zeros(n, np.bool_),
                              np.zeros(n, np.bool_), np.zeros(n, np.bool_), np.zeros(n, np.bool_),
@@ -126,10 +131,7 @@ class ColumnReader:
             raise can.CanOperationError(f"Failed to wait for IP/UDP socket: {exc}") from exc
         if not ready:
             return None
-        hdr = self._hdr
-        hdr["controllen"] = _CONTROL
-        hdr["flags"] = 0
-        n = self._recvmmsg(sock.fileno(), hdr.ctypes.data, min(limit, self.capacity),
+        n = self._recvmmsg(sock.fileno(), self._hdr_address, min(limit, self.capacity),
                            socket.MSG_DONTWAIT, None)
         if n < 0:
             code = ctypes.get_errno()
@@ -140,16 +142,17 @@ class ColumnReader:
         if n == 0:
             return None
         cols, status = self._cols, self._status
-        lens = hdr["msg_len"][:n].astype(np.int64)
-        self._parse(self._buf, self._stride, lens, (hdr["flags"][:n] & _MSG_TRUNC) != 0,
-                    self._ctrl, _CONTROL, hdr["controllen"][:n].astype(np.int64), n,
-                    self.reader.fd, self._names, self._lengths, *cols[:9], status)
-        if (status[:n] == 2).any():
+        python, bad_control = self._parse(
+            self._buf, self._stride, self._lens, self._flags, self._ctrl, _CONTROL,
+            self._ctrl_lens, n, self.reader.fd, self._names, self._lengths, *cols[:9], status)
+        if bad_control:
             raise can.CanOperationError("received control message type that was not requested")
+        if not python:
+            return Columns(*(c[:n] for c in cols[:8]), cols.data, cols.offset[:n])
         keep = None
         for i in np.flatnonzero(status[:n] == 1).tolist():
             start = i * self._stride
-            frame = self.reader.frame_of(self._buf[start:start + lens[i]].tobytes(),
+            frame = self.reader.frame_of(self._buf[start:start + int(self._lens[i])].tobytes(),
                                          float(cols.stamp[i]), errors)
             if frame is None:
                 keep = np.ones(n, np.bool_) if keep is None else keep
@@ -171,8 +174,9 @@ def available() -> bool:
 
 def drop_echoes(cols: Columns, echo: EchoFilter) -> Columns | None:
     """Return ``cols`` without the echoes of frames this node sent (None: nothing left)."""
-    ids = np.fromiter(echo.pending_ids(), np.int64)
-    found = np.flatnonzero(np.isin(cols.ident, ids)).tolist()
+    found: list[int] = []
+    for ident in echo.pending_ids():  # (one or two: the identifiers this node sends)
+        found += np.flatnonzero(cols.ident == ident).tolist()
     if not found:
         return cols
     keep = np.ones(cols.stamp.size, np.bool_)
@@ -185,8 +189,8 @@ def drop_echoes(cols: Columns, echo: EchoFilter) -> Columns | None:
 def _warm_up(parse: Callable[..., None]) -> None:
     """Call ``parse`` once with arguments of the types :meth:`ColumnReader.read` passes."""
     i8, u8, b1 = np.int64, np.uint8, np.bool_
-    one = np.zeros(1, i8)
-    parse(np.zeros(64, u8), 64, one, np.zeros(1, b1), np.zeros(_CONTROL, u8), _CONTROL, one,
-          0, False, np.zeros((1, 1), u8), one, np.zeros(1), one, np.zeros(1, b1),
-          np.zeros(1, b1), np.zeros(1, b1), np.zeros(1, b1), one, one,
+    one, hdr = np.zeros(1, i8), np.zeros(1, _MMSGHDR)
+    parse(np.zeros(64, u8), 64, hdr["msg_len"], hdr["flags"], np.zeros(_CONTROL, u8), _CONTROL,
+          hdr["controllen"], 0, False, np.zeros((1, 1), u8), one, np.zeros(1), one,
+          np.zeros(1, b1), np.zeros(1, b1), np.zeros(1, b1), np.zeros(1, b1), one, one,
           np.zeros(64, u8), one)

@@ -39,6 +39,7 @@ FIELD_KEYS = ("timestamp", "arbitration_id", "is_extended_id", "is_remote_frame"
 #: bytes per frame in the payload column (a CAN FD frame's most)
 PAYLOAD_STRIDE = 64
 _SOL_SOCKET, _SO_TIMESTAMPNS, _CMSG_LEN = 1, 35, 32  # one cmsghdr (16) + a timespec (16)
+_MSG_TRUNC = 0x20
 #: the functions compiled (callees first)
 LOOP_FUNCTIONS = ("_be", "_le", "_le_signed", "_int", "_skip_scalar", "_key", "parse")
 
@@ -118,34 +119,42 @@ def _key(buf: NDArray[np.uint8], pos: int, end: int, names: NDArray[np.uint8],
     return -1, -1
 
 
-def parse(buf: NDArray[np.uint8], stride: int, lens: IntArray, truncated: BoolArray,
-          ctrl: NDArray[np.uint8], ctrl_stride: int, ctrl_lens: IntArray, n: int,
-          fd_ok: bool, names: NDArray[np.uint8], lengths: IntArray,
-          stamp: FloatArray, ident: IntArray, ext: BoolArray, remote: BoolArray,
-          error: BoolArray, fd: BoolArray, dlc: IntArray, size: IntArray,
-          data: NDArray[np.uint8], status: IntArray) -> None:
+def parse(buf: NDArray[np.uint8], stride: int, lens: NDArray[np.uint32],
+          flags: NDArray[np.int32], ctrl: NDArray[np.uint8], ctrl_stride: int,
+          ctrl_lens: NDArray[np.uint64], n: int, fd_ok: bool, names: NDArray[np.uint8],
+          lengths: IntArray, stamp: FloatArray, ident: IntArray, ext: BoolArray,
+          remote: BoolArray, error: BoolArray, fd: BoolArray, dlc: IntArray, size: IntArray,
+          data: NDArray[np.uint8], status: IntArray) -> tuple[int, int]:
     """Parse datagrams ``0..n-1`` into the columns; ``status`` per datagram (module docstring).
 
-    Datagram ``i``: ``buf[i * stride:][:lens[i]]``, its control data
-    ``ctrl[i * ctrl_stride:][:ctrl_lens[i]]``; its payload goes to
-    ``data[i * PAYLOAD_STRIDE:]``.
+    Datagram ``i``: ``buf[i * stride:][:lens[i]]``, truncated when ``flags[i]`` has
+    ``MSG_TRUNC``; its control data ``ctrl[i * ctrl_stride:][:ctrl_lens[i]]``; its payload
+    goes to ``data[i * PAYLOAD_STRIDE:]``. ``ctrl_lens`` and ``flags`` are then reset for
+    the next ``recvmmsg`` (``ctrl_stride``, 0). Returns the numbers of datagrams with status
+    1 and 2.
     """
     value_of = np.zeros(11, np.int64)
+    python, bad_control = 0, 0
     for i in range(n):
+        truncated = (flags[i] & _MSG_TRUNC) != 0
+        control_len = int(ctrl_lens[i])
+        flags[i], ctrl_lens[i] = 0, ctrl_stride
         c = i * ctrl_stride
         level = int(ctrl[c + 8]) | int(ctrl[c + 9]) << 8
         kind = int(ctrl[c + 12]) | int(ctrl[c + 13]) << 8
-        if (ctrl_lens[i] != _CMSG_LEN or _le(ctrl, c, 8) != _CMSG_LEN or level != _SOL_SOCKET
+        if (control_len != _CMSG_LEN or _le(ctrl, c, 8) != _CMSG_LEN or level != _SOL_SOCKET
                 or _le(ctrl, c + 10, 2) != 0 or kind != _SO_TIMESTAMPNS
                 or _le(ctrl, c + 14, 2) != 0):
             status[i] = 2
+            bad_control += 1
             continue
         sec, nsec = _le_signed(ctrl, c + 16), _le_signed(ctrl, c + 24)
         stamp[i] = float(sec) + float(nsec) * 1.0e-9
         status[i] = 1
-        if truncated[i]:
+        python += 1
+        if truncated:
             continue
-        pos, end = i * stride, i * stride + lens[i]
+        pos, end = i * stride, i * stride + int(lens[i])
         if pos >= end or buf[pos] != 0x8B:  # a fixmap of 11
             continue
         pos += 1
@@ -205,6 +214,8 @@ def parse(buf: NDArray[np.uint8], stride: int, lens: IntArray, truncated: BoolAr
         for b in range(data_len):
             data[base + b] = buf[data_at + b]
         status[i] = 0
+        python -= 1
+    return python, bad_control
 
 
 def _le(buf: NDArray[np.uint8], pos: int, width: int) -> int:
