@@ -29,6 +29,8 @@ from typing import Any
 import can
 from can.interfaces.udp_multicast.utils import msgpack, unpack_message  # (None: not installed)
 
+from clutch_ros.canbus.errors import PayloadTooLongError
+
 __all__ = ["RawFrame", "ReaderSlot", "UdpBatchReader", "frame_message", "message_frame"]
 
 #: A frame: (bus time [s], identifier, is_extended, is_remote, is_error, is_fd, dlc, payload);
@@ -140,7 +142,7 @@ class UdpBatchReader:
                                             "requested")
             sec, nsec = _TIMESPEC.unpack(ancillary[0][2])
             stamp = sec + nsec * 1.0e-9
-            frame = None
+            frame, d = None, None
             try:
                 d = unpackb(raw, raw=False)
                 if type(d) is dict and d.keys() == keys:
@@ -149,7 +151,7 @@ class UdpBatchReader:
                 frame = None
             if frame is None:
                 try:
-                    frame = _slow(raw, stamp)
+                    frame = _slow(raw, stamp, d)
                 except can.CanOperationError as err:
                     errors.append(err)
                     continue
@@ -228,8 +230,17 @@ def _fast(stamp: float, d: dict[str, Any]) -> RawFrame | None:
     return (stamp, ident, ext, remote, error, fd, dlc, data)
 
 
-def _slow(raw: bytes, stamp: float) -> RawFrame:
-    """python-can's own unpacking (``check=True``), raising as its udp_multicast bus does."""
+def _slow(raw: bytes, stamp: float, unpacked: Any = None) -> RawFrame:
+    """python-can's own unpacking (``check=True``), raising as its udp_multicast bus does.
+
+    ``unpacked``: the datagram's msgpack value when it was read. A map whose ``data`` is a
+    count above 64 is refused before python-can makes that many bytes
+    (:class:`~clutch_ros.canbus.errors.PayloadTooLongError`).
+    """
+    size = unpacked.get("data") if type(unpacked) is dict else None
+    if type(size) is int and size > 64:
+        raise can.CanOperationError("could not unpack received message") from \
+            PayloadTooLongError(f"data of {size} bytes (a frame has at most 64)")
     try:
         msg = unpack_message(raw, replace={"timestamp": stamp}, check=True)
     except Exception as exception:

@@ -31,6 +31,8 @@ from collections.abc import Callable
 
 import can
 
+from clutch_ros.canbus.errors import PayloadTooLongError
+
 __all__ = [
     "ECHOING_INTERFACES",
     "MALFORMED_REASONS",
@@ -125,6 +127,8 @@ def malformed_reason(err: BaseException) -> str | None:
     cause = err.__cause__
     if cause is None or isinstance(cause, (OSError, can.CanError)):
         return None
+    if isinstance(cause, PayloadTooLongError):
+        return "invalid_frame"
     if _raised_in_can_message(cause):  # can.Message(check=True) rejected the fields
         return "invalid_frame" if isinstance(cause, ValueError) else "not_a_frame"
     if isinstance(cause, ValueError) or type(cause).__module__.split(".")[0] == "msgpack":
