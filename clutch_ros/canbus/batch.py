@@ -29,7 +29,7 @@ from typing import Any
 import can
 from can.interfaces.udp_multicast.utils import msgpack, unpack_message  # (None: not installed)
 
-from clutch_ros.canbus.udp import PayloadTooLongError
+from clutch_ros.canbus.errors import PayloadTooLongError
 
 __all__ = ["RawFrame", "ReaderSlot", "UdpBatchReader", "frame_message", "message_frame"]
 
@@ -164,14 +164,8 @@ class UdpBatchReader:
         except Exception:  # noqa: BLE001 - python-can's own unpacking below says why
             frame = None
         if frame is None:
-            size = d.get("data") if type(d) is dict else None
-            if type(size) is int and size > 64:  # (python-can would allocate it: udp.py)
-                err = can.CanOperationError("could not unpack received message")
-                err.__cause__ = PayloadTooLongError(f"data of {size} bytes (a frame has <= 64)")
-                errors.append(err)
-                return None
             try:
-                frame = _slow(raw, stamp)
+                frame = _slow(raw, stamp, d)
             except can.CanOperationError as err:
                 errors.append(err)
                 return None
@@ -251,8 +245,17 @@ def _fast(stamp: float, d: dict[str, Any]) -> RawFrame | None:
     return (stamp, ident, ext, remote, error, fd, dlc, data)
 
 
-def _slow(raw: bytes, stamp: float) -> RawFrame:
-    """python-can's own unpacking (``check=True``), raising as its udp_multicast bus does."""
+def _slow(raw: bytes, stamp: float, unpacked: Any = None) -> RawFrame:
+    """python-can's own unpacking (``check=True``), raising as its udp_multicast bus does.
+
+    ``unpacked``: the datagram's msgpack value when it was read. A map whose ``data`` is a
+    count above 64 is refused before python-can makes that many bytes
+    (:class:`~clutch_ros.canbus.errors.PayloadTooLongError`).
+    """
+    size = unpacked.get("data") if type(unpacked) is dict else None
+    if type(size) is int and size > 64:
+        raise can.CanOperationError("could not unpack received message") from \
+            PayloadTooLongError(f"data of {size} bytes (a frame has at most 64)")
     try:
         msg = unpack_message(raw, replace={"timestamp": stamp}, check=True)
     except Exception as exception:

@@ -14,6 +14,7 @@ Hierarchy::
           +-- BusConfigError      (also ConfigError)  invalid bus configuration
           +-- BusUnavailable                          bus cannot be opened / link is down
           +-- LogFileError        (also DataError)    CAN log file unreadable or corrupt
+          +-- PayloadTooLongError (also DataError, ValueError) a datagram's payload count > 64
 """
 
 from clutch_ros.errors import ClutchError, ConfigError, DataError
@@ -26,6 +27,7 @@ __all__ = [
     "EncodeError",
     "FrameDecodeError",
     "LogFileError",
+    "PayloadTooLongError",
 ]
 
 
@@ -68,3 +70,14 @@ class BusUnavailable(CanError):  # noqa: N818 -- name fixed by the CAN layer con
 
 class LogFileError(CanError, DataError):
     """A CAN log file cannot be read: missing, unsupported format, corrupt or truncated."""
+
+
+class PayloadTooLongError(CanError, DataError, ValueError):
+    """A udp_multicast datagram's ``data`` is a count of bytes above 64.
+
+    python-can's ``can.Message(data=n)`` makes ``bytearray(n)``: a 20-byte datagram with
+    ``data`` = 2**33 made the receiving process allocate 8 GiB before the frame check refused
+    it. No CAN frame carries more than 64 bytes, so the bridge counts such a datagram as an
+    invalid frame at once (:func:`clutch_ros.canbus.udp.malformed_reason`), without asking
+    python-can.
+    """

@@ -31,6 +31,8 @@ from collections.abc import Callable
 
 import can
 
+from clutch_ros.canbus.errors import PayloadTooLongError
+
 __all__ = [
     "ECHOING_INTERFACES",
     "MALFORMED_REASONS",
@@ -108,15 +110,6 @@ def receive_drops(bus: can.BusABC) -> int | None:
 
 #: The reasons :func:`malformed_reason` returns (a fixed set: bounded diagnostics).
 MALFORMED_REASONS = ("not_msgpack", "invalid_frame", "not_a_frame")
-
-
-class PayloadTooLongError(ValueError):
-    """A datagram's ``data`` is a count of bytes above 64 (python-can would allocate it).
-
-    ``can.Message(data=n)`` makes ``bytearray(n)``: a 20-byte datagram with ``data`` = 2**33
-    made the receiving process allocate 8 GiB before the frame check refused it. No CAN
-    frame carries more than 64 bytes, so such a datagram is an invalid frame at once.
-    """
 
 
 def malformed_reason(err: BaseException) -> str | None:

@@ -219,3 +219,24 @@ def test_without_a_descriptor_to_spare_the_reader_polls_as_before(monkeypatch):
         assert bus._readers.reader is not None and bus._readers.reader._own is None
         assert [_fields(f) for f in got] == [_fields(message_frame(m)) for m in FRAMES[:3]]
         assert bus.recv_batch(0.05) == []
+
+
+def test_a_payload_count_of_gigabytes_is_an_invalid_frame_without_allocating_it():
+    import resource
+
+    import msgpack
+
+    from .recorder import _frame_dict
+
+    group, port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # [KiB]
+    with ReconnectingBus(config) as bus, DatagramSender(group, port) as junk:
+        for fields in (_frame_dict(data=2**31, dlc=8), _frame_dict(data=65, dlc=8),
+                       _frame_dict(data=2, dlc=2)):  # (an int n: n zero bytes, python-can)
+            junk.send(msgpack.packb(fields, use_bin_type=True))
+        got = _read_all(lambda: bus.recv_batch(0.5), 1)
+        assert [_fields(f) for f in got] == [(0x123, False, False, False, False, 2, bytes(2))]
+        assert bus.status().malformed_by_reason == {"invalid_frame": 2}
+    grown = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before
+    assert grown < 200_000, f"{grown} KiB more"  # python-can alone: 2 GiB
