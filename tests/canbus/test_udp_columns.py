@@ -42,8 +42,10 @@ def _read(read, want: int, timeout: float = 5.0) -> list:
 
 
 def _values_of(frame) -> tuple:
-    """A frame's fields as the columns hold them (python-can keeps what a map gave: an
-    ``is_error_frame`` of 300 stays 300 in a Message, a truthy flag in the columns).
+    """Return a frame's fields as the columns hold them.
+
+    python-can keeps what a map gave: an ``is_error_frame`` of 300 stays 300 in a Message,
+    a truthy flag in the columns.
     """
     _, ident, ext, remote, error, fd, dlc, data = frame
     return int(ident), bool(ext), bool(remote), bool(error), bool(fd), int(dlc), bytes(data)
