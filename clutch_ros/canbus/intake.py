@@ -40,7 +40,7 @@ import numpy as np
 from clutch_ros.canbus import intake_kernel as kern
 from clutch_ros.canbus.assembler import ARRAY_LEN, PUMP_FAULTS, SPECIAL_FIELDS, RigStateAssembler
 from clutch_ros.canbus.batch import RawFrame
-from clutch_ros.canbus.counters import PublishPacer
+from clutch_ros.canbus.counters import UNKNOWN_ID_CAPACITY, PublishPacer
 from clutch_ros.canbus.dbc import crc8_table
 
 __all__ = ["Columns", "CompiledIntake", "columns", "compiled_functions", "compress", "frame_at",
@@ -170,9 +170,9 @@ def _warm_up(scan: Callable[..., tuple[int, int, int]]) -> None:
     scan(*cols, 0, np.zeros((1, 10), i8), np.zeros((1, 1, 3), i8), np.zeros((1, 1, 4), f8),
          np.zeros((1, 1), i8), np.zeros((1, 1, 2), f8), np.zeros(1, f8), np.zeros(256, i8),
          np.zeros((1, 1, 3), i8), np.zeros((1, 1, 2), f8), np.zeros((1, 7), i8),
-         np.zeros(5, i8), np.zeros(1, i8), np.zeros(1, i8), np.zeros(1, f8), np.zeros(1, i8),
+         np.zeros(7, i8), np.zeros(1, i8), np.zeros(1, i8), np.zeros(1, f8), np.zeros(1, i8),
          np.zeros(2, f8), np.zeros(1, f8), np.zeros(1, i8), np.zeros(1, f8), np.zeros(1, i8),
-         0, np.zeros(8, f8), -1)
+         np.zeros(1, i8), np.zeros(1, i8), 0, np.zeros(8, f8), -1)
 
 
 class _Tables(NamedTuple):
@@ -203,7 +203,8 @@ class CompiledIntake:
         self._t = _tables(assembler, pacer.fallback, frozenset(python_keys))
         self._keys = [int(k) for k in self._t.scan[0][:, kern.S_KEY]]
         k, n_targets = len(self._keys), max(len(self._t.targets), 1)
-        self._counts = np.zeros(5, np.int64)
+        self._counts = np.zeros(7, np.int64)
+        self._unknown_keys, self._unknown_counts = np.zeros(64, np.int64), np.zeros(64, np.int64)
         self._per_id = np.zeros(k, np.int64)
         self._ctr_has, self._ctr_stamp, self._ctr_val = (np.zeros(k, np.int64),
                                                          np.zeros(k), np.zeros(k, np.int64))
@@ -238,7 +239,8 @@ class CompiledIntake:
             nxt, key, _ = scan(*cols, start, *self._t.scan, *self._t.writes,
                                self._counts, self._per_id, self._ctr_has, self._ctr_stamp,
                                self._ctr_val, self._newest, self._fill_stamp, self._fill_seq,
-                               self._live, self._written, 0, self._pacer_state,
+                               self._live, self._written, self._unknown_keys,
+                               self._unknown_counts, 0, self._pacer_state,
                                -1 if pacer.trigger is None else pacer.trigger)
             if nxt > start:
                 self._store(asm, pacer)
@@ -268,6 +270,18 @@ class CompiledIntake:
         c.decoded_frames += counts[kern.C_DECODED]
         c.dropped_frames += counts[kern.C_DROPPED]
         c.counter_repeats += counts[kern.C_REPEATS]
+        if counts[kern.C_UNKNOWN]:  # (FrameCounters.count_unknown, a key at a time)
+            c.unknown_frames += counts[kern.C_UNKNOWN]
+            ids = c.unknown_ids
+            for key, n in zip(self._unknown_keys[:counts[kern.C_UNKNOWN_KEYS]].tolist(),
+                              self._unknown_counts[:counts[kern.C_UNKNOWN_KEYS]].tolist(),
+                              strict=True):
+                if key in ids:
+                    ids[key] += n
+                elif len(ids) < UNKNOWN_ID_CAPACITY:
+                    ids[key] = n
+                else:
+                    c.unknown_untracked += n
         last = asm._last_counter  # noqa: SLF001
         for s in np.flatnonzero(self._per_id).tolist():
             key = keys[s]

@@ -1,14 +1,15 @@
 """The per-frame loop of the can_bridge's receive path, compiled in :mod:`.intake`.
 
 These are plain Python functions over numpy arrays; :mod:`clutch_ros.canbus.intake` compiles
-them with numba (``njit``) and owns the arrays. :func:`scan` does, for a run of *clean* rig
-frames, exactly what :meth:`~clutch_ros.canbus.assembler.RigStateAssembler.feed_frame`
-followed by the can_bridge's pacing (``ReceiveSide._on_frames``: ``PublishPacer``'s
-``fallback_due`` and ``trigger_held``) do, without a Python object per frame, and stops:
+them with numba (``njit``) and owns the arrays. :func:`scan` counts foreign identifiers (not
+in the DBC) and does, for a run of *clean* rig frames, exactly what
+:meth:`~clutch_ros.canbus.assembler.RigStateAssembler.feed_frame` followed by the
+can_bridge's pacing (``ReceiveSide._on_frames``: ``PublishPacer``'s ``fallback_due`` and
+``trigger_held``) do, without a Python object per frame, and stops:
 
 * *before* the first frame that is not clean -- an error, remote or FD frame, an invalid
-  identifier or DLC, an identifier outside the compiled tables (unknown, the pump request,
-  a frame whose signals the tables cannot decode), a wrong length, a wrong checksum, a value
+  identifier or DLC, a DBC frame outside the compiled tables (the pump request, a frame
+  whose signals the tables cannot decode), a wrong length, a wrong checksum, a value
   outside its DBC range, a non-finite time -- which the caller then hands to the Python path,
   so everything rare keeps one implementation;
 * *after* a frame at which the pacer publishes (the trigger when the cap allows it, or a
@@ -29,11 +30,13 @@ Layouts (the index constants below name the columns):
   offset, has offset (1.0/0.0), factor; ``rint`` int64 (K, R): field of each range;
   ``rflt`` float64 (K, R, 2): low, high; ``cycle`` float64 (K): the frame's cycle time [s]
   (0: none);
-* state: ``counts`` int64 (5): frames, data frames, decoded frames, dropped, repeats (added
-  to the assembler's counters by the caller); ``per_id`` int64 (K); the rolling counters'
-  ``ctr_has`` (K, bool as int64), ``ctr_stamp`` (K), ``ctr_val`` (K); the newest decoded time
-  ``newest`` float64 (2): has, time; per slot the newest fill ``fill_stamp`` (K),
-  ``fill_seq`` int64 (K: order of the newest fill, -1: none in this run);
+* state: ``counts`` int64 (7): frames, data frames, decoded frames, dropped, repeats,
+  foreign frames, foreign keys (added to the assembler's counters by the caller); the foreign
+  keys in the order first seen, ``unknown_keys`` int64 (U), and their frames,
+  ``unknown_counts`` int64 (U) (a run stops when U keys are there); ``per_id`` int64 (K);
+  the rolling counters' ``ctr_has`` (K, bool as int64), ``ctr_stamp`` (K), ``ctr_val`` (K);
+  the newest decoded time ``newest`` float64 (2): has, time; per slot the newest fill
+  ``fill_stamp`` (K), ``fill_seq`` int64 (K: order of the newest fill, -1: none in this run);
 * the sample's fields (:class:`~clutch_ros.rigstate.RigSample`, one entry per scalar and per
   array element): ``wint`` int64 (K, W, 3) per write of a slot -- target entry, field, kind
   (``W_*``); ``wflt`` float64 (K, W, 2): mult, offset; ``faults`` int64 (K, 7): the field of
@@ -61,7 +64,7 @@ __all__ = ["C_TOTAL", "LOOP_FUNCTIONS", "MAX_BITS", "S_KEY", "crc8", "scan"]
 # kinds of writes into the sample: mult * value + offset, bool, int, the pump's fault bits
 W_VALUE, W_FLAG, W_INT, W_FAULTS = range(4)
 # counts
-C_TOTAL, C_DATA, C_DECODED, C_DROPPED, C_REPEATS = range(5)
+C_TOTAL, C_DATA, C_DECODED, C_DROPPED, C_REPEATS, C_UNKNOWN, C_UNKNOWN_KEYS = range(7)
 # pacer
 P_TOKENS, P_LAST, P_FLOWING, P_LAST_FRAME, P_PENDING, P_RATE, P_BURST, P_ACTIVE = range(8)
 #: widest signal the tables take: its raw value is exact as a float64
@@ -107,8 +110,9 @@ def scan(stamp: FloatArray, ident: IntArray, ext: BoolArray, remote: BoolArray,
          cycle: FloatArray, crc_table: IntArray, wint: IntArray, wflt: FloatArray,
          faults: IntArray, counts: IntArray, per_id: IntArray, ctr_has: IntArray,
          ctr_stamp: FloatArray, ctr_val: IntArray, newest: FloatArray, fill_stamp: FloatArray,
-         fill_seq: IntArray, live: FloatArray, written: IntArray, seq: int,
-         pacer: FloatArray, trigger: int) -> tuple[int, int, int]:
+         fill_seq: IntArray, live: FloatArray, written: IntArray, unknown_keys: IntArray,
+         unknown_counts: IntArray, seq: int, pacer: FloatArray,
+         trigger: int) -> tuple[int, int, int]:
     """Consume clean frames from ``i0`` on; return ``(next index, publishing key or -1, seq)``.
 
     Frame ``i``: ``stamp`` [s], ``ident``, flags ``ext``/``remote``/``error``/``fd``, ``dlc``,
@@ -125,7 +129,23 @@ def scan(stamp: FloatArray, ident: IntArray, ext: BoolArray, remote: BoolArray,
             return i, -1, seq
         key = ident_i | 0x80000000 if ext[i] else ident_i
         s = _slot(slots, key)
-        if s < 0 or slots[s, S_OK] == 0 or nbytes != slots[s, S_LEN]:
+        if s < 0:  # a foreign identifier: counted (per key, the first seen first), no more
+            n_keys = counts[C_UNKNOWN_KEYS]
+            j = 0
+            while j < n_keys and unknown_keys[j] != key:
+                j += 1
+            if j == n_keys:
+                if n_keys == unknown_keys.shape[0]:
+                    return i, -1, seq
+                unknown_keys[j], unknown_counts[j] = key, 0
+                counts[C_UNKNOWN_KEYS] += 1
+            unknown_counts[j] += 1
+            counts[C_TOTAL] += 1
+            counts[C_DATA] += 1
+            counts[C_UNKNOWN] += 1
+            i += 1
+            continue
+        if slots[s, S_OK] == 0 or nbytes != slots[s, S_LEN]:
             return i, -1, seq
         start = offset[i]
         if slots[s, S_E2E] != 0 and (nbytes < 1 or crc8(data, start + 1, start + nbytes,

@@ -119,6 +119,19 @@ def _traffic(seed: int, seconds: float, db: RigDatabase) -> list[RawFrame]:
     return frames
 
 
+def _foreign_burst(frames: list[RawFrame], db: RigDatabase, count: int) -> list[RawFrame]:
+    """Insert ``count`` frames of distinct foreign identifiers in the middle of ``frames``.
+
+    More keys than one kernel run holds (64) and than the counters track one by one (256).
+    """
+    known = db.keys
+    ids = [i for i in range(0x800) if i not in known][:count]
+    middle = len(frames) // 2
+    t = frames[middle][0]
+    burst = [(t, i, False, False, False, False, 1, b"\x01") for i in ids]
+    return frames[:middle] + burst + burst[:50] + frames[middle:]
+
+
 def _batches(frames: list[RawFrame], seed: int) -> list[list[RawFrame]]:
     rng = random.Random(seed + 1)
     out, i = [], 0
@@ -163,6 +176,8 @@ def db() -> RigDatabase:
 def test_compiled_intake_is_the_python_path(db, seed, rate, trigger_name, active) -> None:
     trigger = db.frame(trigger_name).key if trigger_name else None
     frames = _traffic(seed, 1.5, db)
+    if seed == 6:
+        frames = _foreign_burst(frames, db, 400)
     python = _Receiver(db, False, rate, trigger, active)
     compiled = _Receiver(db, True, rate, trigger, active)
     for batch in _batches(frames, seed):
@@ -173,10 +188,12 @@ def test_compiled_intake_is_the_python_path(db, seed, rate, trigger_name, active
         assert len(python._rig_pub.samples) > 40  # (the pacer published along the way)
     _assert_samples_equal(compiled._rig_pub.samples, python._rig_pub.samples)
     assert c.assembler.counters() == p.assembler.counters()
-    assert c.assembler.counters().decoded_frames > 0.6 * len(frames)
+    assert c.assembler.counters().decoded_frames > (0.45 if seed == 6 else 0.6) * len(frames)
+    if seed == 6:  # (the burst: every count kept, the untracked ones summed)
+        assert c.assembler.counters().unknown_untracked > 100
     assert _pacer_state(c.pacer) == pytest.approx(_pacer_state(p.pacer), nan_ok=True, rel=0)
     assert c.foreign_pump_requests == p.foreign_pump_requests
     assert (p.foreign_pump_requests > 0) == active
-    assert c.intake.taken > 0.6 * len(frames)  # the kernel took the clean rig frames
+    assert c.intake.taken > 0.6 * len(frames)  # the kernel took the clean and foreign frames
     assert c.published == p.published
     _assert_samples_equal([c.assembler.snapshot()], [p.assembler.snapshot()])
