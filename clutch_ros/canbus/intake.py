@@ -44,7 +44,7 @@ from clutch_ros.canbus.counters import UNKNOWN_ID_CAPACITY, PublishPacer
 from clutch_ros.canbus.dbc import crc8_table
 
 __all__ = ["Columns", "CompiledIntake", "columns", "compiled_functions", "compress", "frame_at",
-           "unavailable_reason", "warm_up"]
+           "take", "unavailable_reason", "warm_up"]
 
 _log = logging.getLogger(__name__)
 _LOCK = threading.Lock()
@@ -134,11 +134,16 @@ def _compiled() -> Callable[..., tuple[int, int, int]] | None:
     return cast("Callable[..., tuple[int, int, int]] | None", _state["scan"])
 
 
+def take(cols: Columns, which: slice | np.ndarray) -> Columns:
+    """Return the frames ``which`` (a slice, a mask) of ``cols``: views where numpy can."""
+    return Columns(cols.stamp[which], cols.ident[which], cols.ext[which], cols.remote[which],
+                   cols.error[which], cols.fd[which], cols.dlc[which], cols.size[which],
+                   cols.data, cols.offset[which])
+
+
 def compress(cols: Columns, keep: np.ndarray) -> Columns | None:
     """Return the frames of ``cols`` where ``keep`` is True (None: none)."""
-    if not keep.any():
-        return None
-    return Columns(*(c[keep] for c in cols[:8]), cols.data, cols.offset[keep])
+    return take(cols, keep) if keep.any() else None
 
 
 def frame_at(cols: Columns, i: int) -> RawFrame:

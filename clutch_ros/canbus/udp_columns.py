@@ -32,7 +32,7 @@ import numpy as np
 
 from clutch_ros.canbus import udp_kernel as kern
 from clutch_ros.canbus.batch import UdpBatchReader
-from clutch_ros.canbus.intake import Columns, compiled_functions, compress, frame_at
+from clutch_ros.canbus.intake import Columns, compiled_functions, compress, frame_at, take
 from clutch_ros.canbus.udp import EchoFilter
 
 __all__ = ["ColumnReader", "available", "drop_echoes"]
@@ -48,7 +48,7 @@ _LOCK = threading.Lock()
 _state: dict[str, Any] = {"parse": None, "recvmmsg": None, "tried": False}
 
 
-def _set_up() -> tuple[Callable[..., None], Any] | None:
+def _set_up() -> tuple[Callable[..., tuple[int, int]], Any] | None:
     """Return ``(compiled parse, libc recvmmsg)``, None where they are not available."""
     with _LOCK:
         if not _state["tried"]:
@@ -76,7 +76,8 @@ class ColumnReader:
     Use :meth:`for_reader`. ``capacity``: the most datagrams one call takes.
     """
 
-    def __init__(self, reader: UdpBatchReader, parse: Callable[..., None], recvmmsg: Any,
+    def __init__(self, reader: UdpBatchReader, parse: Callable[..., tuple[int, int]],
+                 recvmmsg: Any,
                  capacity: int = 256) -> None:
         self.reader, self._parse, self._recvmmsg = reader, parse, recvmmsg
         self.capacity, self._stride = capacity, reader.max_buffer
@@ -148,7 +149,7 @@ class ColumnReader:
         if bad_control:
             raise can.CanOperationError("received control message type that was not requested")
         if not python:
-            return Columns(*(c[:n] for c in cols[:8]), cols.data, cols.offset[:n])
+            return take(cols, slice(0, n))
         keep = None
         for i in np.flatnonzero(status[:n] == 1).tolist():
             start = i * self._stride
@@ -163,7 +164,7 @@ class ColumnReader:
             cols.fd[i], cols.dlc[i], cols.size[i] = fd, dlc, len(data)
             base = i * kern.PAYLOAD_STRIDE
             cols.data[base:base + len(data)] = np.frombuffer(data, np.uint8)
-        view = Columns(*(c[:n] for c in cols[:8]), cols.data, cols.offset[:n])
+        view = take(cols, slice(0, n))
         return view if keep is None else compress(view, keep)
 
 
@@ -186,7 +187,7 @@ def drop_echoes(cols: Columns, echo: EchoFilter) -> Columns | None:
     return compress(cols, keep)
 
 
-def _warm_up(parse: Callable[..., None]) -> None:
+def _warm_up(parse: Callable[..., tuple[int, int]]) -> None:
     """Call ``parse`` once with arguments of the types :meth:`ColumnReader.read` passes."""
     i8, u8, b1 = np.int64, np.uint8, np.bool_
     one, hdr = np.zeros(1, i8), np.zeros(1, _MMSGHDR)
