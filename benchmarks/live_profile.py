@@ -38,6 +38,7 @@ DEFAULT_TARGETS = {
         "clutch_ros.canbus.bus:ReconnectingBus.recv_batch",
         "clutch_ros.nodes.can_bridge_receive:ReceiveSide._on_frames",
         "clutch_ros.canbus.assembler:RigStateAssembler.feed_frame",
+        "clutch_ros.canbus.intake:CompiledIntake.run",
         "clutch_ros.nodes.can_bridge_receive:ReceiveSide._publish",
         "clutch_ros.canbus.assembler:RigStateAssembler.snapshot",
         "clutch_ros.nodes.can_bridge_send:PumpSender.cycle",

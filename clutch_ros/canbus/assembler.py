@@ -59,6 +59,9 @@ from clutch_ros.errors import ConfigError
 from clutch_ros.rigstate import FIELDS, RigSample
 
 __all__ = [
+    "ARRAY_LEN",
+    "PUMP_FAULTS",
+    "SPECIAL_FIELDS",
     "RigSample",
     "RigStateAssembler",
     "SignalGroup",
@@ -81,8 +84,10 @@ class SignalGroup:
         return self.messages[0] if self.messages else ""
 
 
-_ARRAY_LEN = {f.name: len(f.csv_stems) for f in FIELDS if f.kind == "array"}
-_PUMP_FAULTS = (
+#: length of each array field of RigSample
+ARRAY_LEN = {f.name: len(f.csv_stems) for f in FIELDS if f.kind == "array"}
+#: the pump status frame's fault flags, bit i of ``pump_faults``
+PUMP_FAULTS = (
     "PumpSts_FltOverCurrent",
     "PumpSts_FltOverTemp",
     "PumpSts_FltUnderVoltage",
@@ -92,6 +97,8 @@ _PUMP_FAULTS = (
     "PumpSts_FltReqCounter",
 )
 _NAN = float("nan")
+#: fields the signal map writes with their own rule (not ``mult * value + offset``)
+SPECIAL_FIELDS = frozenset({"has_measured_torque", "pump_state"})
 
 
 class RigStateAssembler(can.Listener):
@@ -146,7 +153,8 @@ class RigStateAssembler(can.Listener):
         self._cycle = {spec.key: spec.cycle_time for spec in self.db.frames}
         self._known = self.db.keys
         #: decodes a known frame key's payload (compiled tables; cantools for the rest)
-        self._decode = FastDecoder(self.db).decode
+        self.decoder = FastDecoder(self.db)
+        self._decode = self.decoder.decode
         self._socketcan_errors = socketcan_error_frames
         self._lock = threading.Lock()
         self._counters = FrameCounters()
@@ -334,10 +342,10 @@ def _filler(writes: tuple[Write, ...]) -> Callable[[RigSample, Mapping[str, floa
     ``PumpSts_Flt*`` signals, when present, give ``pump_faults``), ``slip_speed`` is input minus
     output speed unless mapped.
     """
-    special = {"has_measured_torque", "pump_state"}
+    special = SPECIAL_FIELDS
     scalars = tuple((w.field, w.signal, w.mult, w.offset) for w in writes
                     if w.index is None and w.field not in special)
-    elements = tuple((w.field, w.index, w.signal, w.mult, w.offset, _ARRAY_LEN[w.field])
+    elements = tuple((w.field, w.index, w.signal, w.mult, w.offset, ARRAY_LEN[w.field])
                      for w in writes if w.index is not None)
     by_key = {w.key: w for w in writes}
     valid = by_key["has_measured_torque"].signal if "has_measured_torque" in by_key else None
@@ -360,7 +368,7 @@ def _filler(writes: tuple[Write, ...]) -> Callable[[RigSample, Mapping[str, floa
             sample.has_measured_torque = math.isfinite(sample.measured_torque)
         if state is not None:
             sample.pump_state = int(v[state])
-            sample.pump_faults = sum(1 << i for i, n in enumerate(_PUMP_FAULTS) if v.get(n))
+            sample.pump_faults = sum(1 << i for i, n in enumerate(PUMP_FAULTS) if v.get(n))
         if slip:
             sample.slip_speed = sample.input_speed - sample.output_speed
 

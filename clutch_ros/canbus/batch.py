@@ -85,6 +85,10 @@ class UdpBatchReader:
             self._own = None
         self._poll = select.poll()
         self._poll.register(sock, select.POLLIN)
+        #: its compiled twin (:class:`clutch_ros.canbus.udp_columns.ColumnReader`), made by
+        #: the bus at the first :meth:`~clutch_ros.canbus.bus.ReconnectingBus.recv_columns`
+        #: (False: not available here)
+        self.column_reader: Any = None
 
     def close(self) -> None:
         """Close this reader's duplicate of the socket (the bus's own stays as it is)."""
@@ -121,9 +125,7 @@ class UdpBatchReader:
             return out
         recvmsg, size, anc, dontwait = ((own or sock).recvmsg, self.max_buffer,
                                         self._ancillary, socket.MSG_DONTWAIT)
-        assert msgpack is not None  # for_bus made no reader without it
-        unpackb, keys, fd_ok = msgpack.unpackb, _KEYS, self.fd
-        poll, more = self._poll.poll, False
+        frame_of, poll, more = self.frame_of, self._poll.poll, False
         while len(out) < limit:
             if more and own is None and not poll(0):
                 break
@@ -141,24 +143,37 @@ class UdpBatchReader:
                 raise can.CanOperationError("received control message type that was not "
                                             "requested")
             sec, nsec = _TIMESPEC.unpack(ancillary[0][2])
-            stamp = sec + nsec * 1.0e-9
-            frame, d = None, None
-            try:
-                d = unpackb(raw, raw=False)
-                if type(d) is dict and d.keys() == keys:
-                    frame = _fast(stamp, d)
-            except Exception:  # noqa: BLE001 - python-can's own unpacking below says why
-                frame = None
-            if frame is None:
-                try:
-                    frame = _slow(raw, stamp, d)
-                except can.CanOperationError as err:
-                    errors.append(err)
-                    continue
-            if frame[5] and not fd_ok:  # an FD frame on a bus opened without FD: ignored
-                continue
-            out.append(frame)
+            frame = frame_of(raw, sec + nsec * 1.0e-9, errors)
+            if frame is not None:
+                out.append(frame)
         return out
+
+    def frame_of(self, raw: bytes, stamp: float,
+                 errors: list[BaseException]) -> RawFrame | None:
+        """Return the frame of one datagram received at ``stamp`` [s], as :meth:`read` does.
+
+        None when it is no valid frame (its ``can.CanOperationError`` appended to ``errors``)
+        or an FD frame on a bus opened without FD (ignored).
+        """
+        assert msgpack is not None  # for_bus made no reader without it
+        frame, d = None, None
+        try:
+            d = msgpack.unpackb(raw, raw=False)
+            if type(d) is dict and d.keys() == _KEYS:
+                frame = _fast(stamp, d)
+        except Exception:  # noqa: BLE001 - python-can's own unpacking below says why
+            frame = None
+        if frame is None:
+            try:
+                frame = _slow(raw, stamp, d)
+            except can.CanOperationError as err:
+                errors.append(err)
+                return None
+        return None if frame[5] and not self.fd else frame
+
+    def own_socket(self) -> socket.socket:
+        """Return the socket this reader reads: its duplicate, else the bus's."""
+        return self._own or self.sock
 
 
 class ReaderSlot:

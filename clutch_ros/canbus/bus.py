@@ -38,6 +38,7 @@ from clutch_ros.canbus.batch import RawFrame, ReaderSlot, message_frame
 from clutch_ros.canbus.config import BusConfig, open_bus, parse_filters
 from clutch_ros.canbus.counters import RateLimiter, classify_socketcan_error
 from clutch_ros.canbus.errors import BusConfigError, BusUnavailable
+from clutch_ros.canbus.intake import Columns
 from clutch_ros.canbus.udp import (
     ECHOING_INTERFACES,
     EchoFilter,
@@ -45,6 +46,7 @@ from clutch_ros.canbus.udp import (
     receive_drops,
     tune_udp_multicast,
 )
+from clutch_ros.canbus.udp_columns import ColumnReader, drop_echoes
 
 __all__ = [
     "BusConfig",  # BusConfig, open_bus, parse_filters: re-exported from canbus.config
@@ -376,6 +378,41 @@ class ReconnectingBus(can.BusABC):
                 (f[1], f[2], f[3], f[4], f[5], f[7]), f[0])]
         self._poll_state(bus)
         return frames
+
+    def recv_columns(self, timeout: float | None,
+                     limit: int = 256) -> Columns | list[RawFrame]:
+        """:meth:`recv_batch` into :class:`~clutch_ros.canbus.intake.Columns`, compiled.
+
+        On udp_multicast (Linux, numba): one ``recvmmsg`` and one compiled parse per call
+        (:class:`~clutch_ros.canbus.udp_columns.ColumnReader`), the same frames, echoes,
+        counts and failures as :meth:`recv_batch`; elsewhere :meth:`recv_batch`'s list.
+        Nothing received: an empty list.
+        """
+        try:
+            with self._readers.lock:
+                bus = self._current()
+                reader = self._readers.reader_for(bus)
+                if bus is None or reader is None:
+                    return self._recv_batch(timeout, limit)
+                if reader.column_reader is None:
+                    reader.column_reader = ColumnReader.for_reader(reader) or False
+                if reader.column_reader is False:
+                    return self._recv_batch(timeout, limit)
+                errors: list[BaseException] = []
+                try:
+                    cols = reader.column_reader.read(timeout, limit, errors)
+                except Exception as err:  # CanOperationError, OSError: as recv()
+                    self._fail(bus, f"receive failed: {type(err).__name__}: {err}")
+                    return []
+                for bad in errors:
+                    self._count_malformed(malformed_reason(bad) or "not_a_frame", bad)
+                if cols is not None and self._echo is not None and self._echo.waiting:
+                    cols = drop_echoes(cols, self._echo)
+                self._poll_state(bus)
+                return [] if cols is None else cols
+        finally:
+            if self._state == LinkState.CLOSED:  # (after the release: ReaderSlot.close_idle)
+                self._readers.close_idle()
 
     def _count_malformed(self, reason: str, err: BaseException) -> None:
         with self._lock:

@@ -12,9 +12,11 @@ the caller passes (bus time or a monotonic clock), never read from the system cl
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Collection
 from dataclasses import dataclass, field
+from typing import Any
 
 from clutch_ros.canbus.dbc import format_frame_key
 
@@ -320,6 +322,28 @@ class PublishPacer:
     def refund(self) -> None:
         """Give back the token of an allowed publication that did not happen (nothing new)."""
         self._tokens = min(self.burst, self._tokens + 1.0)
+
+    def export_state(self, out: Any) -> None:
+        """Write the state into ``out[0:7]`` (the layout of compiled pacing code).
+
+        Tokens, last, flowing since, last frame (NaN: None), pending, ``rate``, ``burst``;
+        ``out``: a float array or list of at least 7.
+        """
+        nan = math.nan
+        out[0], out[1], out[2], out[3], out[4], out[5], out[6] = (
+            self._tokens, nan if self._last is None else self._last,
+            nan if self._flowing_since is None else self._flowing_since,
+            nan if self._last_frame is None else self._last_frame,
+            1.0 if self.pending else 0.0, self.rate, self.burst)
+
+    def import_state(self, state: Any) -> None:
+        """Take the state :meth:`export_state` wrote (after compiled code changed it)."""
+        tokens, last, flowing, last_frame, pending = (float(v) for v in state[:5])
+        self._tokens = tokens
+        self._last = None if math.isnan(last) else last
+        self._flowing_since = None if math.isnan(flowing) else flowing
+        self._last_frame = None if math.isnan(last_frame) else last_frame
+        self.pending = pending != 0.0
 
     def until_allowed(self, now: float) -> float:
         """Return how long [s] after ``now`` the next publication can be allowed (0: at once).

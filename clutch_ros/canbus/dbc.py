@@ -53,6 +53,11 @@ def _make_crc8_table() -> tuple[int, ...]:
 _CRC8_TABLE = _make_crc8_table()
 
 
+def crc8_table() -> tuple[int, ...]:
+    """Return the 256-entry table of :func:`crc8_sae_j1850` (for compiled code)."""
+    return _CRC8_TABLE
+
+
 def crc8_sae_j1850(data: bytes | bytearray) -> int:
     """Return the CRC-8 SAE J1850 of ``data`` (poly 0x1D, init 0xFF, xorout 0xFF), 0..255."""
     crc = 0xFF

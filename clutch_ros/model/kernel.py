@@ -53,7 +53,7 @@ if TYPE_CHECKING:
 
 __all__ = ["ENGINES", "Columns", "History", "KernelUnavailableError", "LAW_CODES",
            "OUTPUT_COLUMNS", "Series", "available", "check_engine", "lowpass_series",
-           "run_columns", "run_loop", "unavailable_reason"]
+           "numba_cache_dir", "run_columns", "run_loop", "unavailable_reason"]
 
 _log = logging.getLogger(__name__)
 
@@ -89,8 +89,8 @@ _LoopFunction = Callable[..., tuple[float, float]]
 _LOCK = threading.RLock()
 
 
-def _cache_dir() -> str:
-    """Default cache folder, one per version of kernel_box.py.
+def numba_cache_dir() -> str:
+    """Default numba cache folder of clutch_ros, one per version of kernel_box.py.
 
     numba checks a cached function against its own file only: a change in kernel_box.py alone
     would leave the cached loop of kernel_loop.py calling the old box code.
@@ -139,7 +139,7 @@ def _set_up() -> _LoopFunction | None:
     if os.environ.get("CLUTCH_KERNEL", "1") == "0":
         _disable("switched off by CLUTCH_KERNEL=0", logging.INFO)
         return None
-    os.environ.setdefault("NUMBA_CACHE_DIR", _cache_dir())
+    os.environ.setdefault("NUMBA_CACHE_DIR", numba_cache_dir())
     try:
         # numba (LLVM) is slow to import (~0.3-0.5 s): loaded on the first simulate(), so
         # commands that never simulate start fast

@@ -65,6 +65,7 @@ from clutch_ros.canbus import (
     RigStateAssembler,
 )
 from clutch_ros.canbus.counters import PublishPacer
+from clutch_ros.canbus.intake import CompiledIntake, unavailable_reason
 from clutch_ros.canbus.signal_map import SignalMap
 from clutch_ros.errors import ClutchError
 from clutch_ros.interfaces import CAN_FRAMES, PUMP_REQUEST, RIG_STATE
@@ -149,6 +150,14 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
             else:
                 config = BusConfig.from_params(cfg)
                 st.bus = ReconnectingBus(config, on_event=self._on_link_event)
+                if cfg["bridge.compiled"] and not self._sim_time \
+                        and not cfg["bridge.publish_raw"]:
+                    st.intake = CompiledIntake(st.assembler, st.pacer,
+                                               (st.gate.codec.spec.key,))
+                    if not st.intake.ready:
+                        self.get_logger().warning(f"bridge.compiled: {unavailable_reason()}; "
+                                                  "the rig frames are decoded in Python")
+                        st.intake = None
                 self._rx_stop.clear()
                 self._rx = threading.Thread(target=self._receive, args=(st.bus,),
                                             name="can_rx", daemon=True)

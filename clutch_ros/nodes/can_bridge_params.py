@@ -66,6 +66,10 @@ PARAMS = [
               "bridge.rate timer"),
     _ro("bridge.publish_raw", False, "publish every frame on can_frames; read-only: decides "
         "at configure whether can_frames is advertised"),
+    _ro("bridge.compiled", True, "decode, assemble and pace the clean rig frames in compiled "
+        "code (numba; the Python path until it is built, and whenever numba is missing, "
+        "can_frames is published, or use_sim_time is set); the same rig_state; read-only: "
+        "chosen at configure"),
     ParamSpec("pump.max_pressure", _GATE.max_pressure, "largest pressure ever requested",
               "Pa", 1e4, 60e5),
     ParamSpec("pump.rise_rate_limit", _GATE.rate_limit_up, "maximum rise of the requested "

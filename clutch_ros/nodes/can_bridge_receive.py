@@ -36,6 +36,7 @@ from typing import Any
 import can
 
 from clutch_ros.canbus.batch import RawFrame, frame_message
+from clutch_ros.canbus.intake import Columns, frame_at
 from clutch_ros.nodes.can_bridge_state import BridgeState
 from clutch_ros.nodes.convert import can_frame_to_ros
 from clutch_ros.nodes.lockstep import time_of_frame
@@ -77,11 +78,17 @@ class ReceiveSide:
                         throttle_duration_sec=10.0)
 
     def _receive(self, bus) -> None:
-        """Receive thread: batches of frames from ``bus`` into :meth:`_on_frames`."""
+        """Receive thread: batches of frames from ``bus`` into :meth:`_on_frames`.
+
+        With the compiled intake the batches come as columns (``recv_columns``: one system
+        call and one compiled parse per batch on udp_multicast), else as tuples.
+        """
         stop, on_frames = self._rx_stop, self._on_frames
+        intake = self.state.intake
+        recv = bus.recv_columns if intake is not None and intake.ready else bus.recv_batch
         while not stop.is_set():
             try:
-                frames = bus.recv_batch(0.1)
+                frames = recv(0.1)
             except can.CanOperationError:  # shut down
                 return
             except Exception as err:  # noqa: BLE001 - counted; the thread must live
@@ -109,8 +116,41 @@ class ReceiveSide:
         return min(newest + offset + wait - HOLD_MARGIN - time.time(), 1.0 / pacer.rate,
                    FLUSH_PERIOD)
 
-    def _on_frames(self, frames: list[RawFrame]) -> None:
+    def _on_frames(self, frames: list[RawFrame] | Columns) -> None:
         """Receive thread: frames -> live sample -> (pacer) -> rig_state when active.
+
+        With the compiled intake (``bridge.compiled``, :mod:`clutch_ros.canbus.intake`) its
+        kernel takes the runs of clean rig frames, publishing where the pacer says; each
+        other frame goes through :meth:`_feed_frames`, as every frame does without it.
+        """
+        st = self.state
+        intake, pacer = st.intake, st.pacer
+        if isinstance(frames, Columns):
+            cols: Columns | None = frames
+        else:
+            cols = intake.columns(frames) if intake is not None and intake.ready else None
+        if intake is None or cols is None:
+            self._feed_frames(frames if isinstance(frames, list) else _frames(frames))
+            return
+        assert pacer is not None  # configured with the intake
+        i, n = 0, cols.stamp.size
+        while i < n:
+            try:
+                with self._lock:  # (the pacer's, as in _feed_frames; see _halt)
+                    i, key = intake.run(cols, i, st.active)
+            except Exception as err:  # noqa: BLE001 - nothing was taken: the Python path
+                assert st.assembler is not None
+                st.assembler.on_error(err)
+                self._feed_frames(_frames(cols)[i:])
+                return
+            if key >= 0:
+                self._publish_latest(pacer.on_frame, key, bus_time=True)
+            elif i < n:  # no clean rig frame: the Python path, then the kernel again
+                self._feed_frames([frame_at(cols, i)])
+                i += 1
+
+    def _feed_frames(self, frames: list[RawFrame]) -> None:
+        """Frames -> live sample -> (pacer) -> rig_state when active, in Python.
 
         A batch at a time: what stays the same from configure to cleanup is looked up once.
         """
@@ -217,3 +257,8 @@ class ReceiveSide:
         self._rig_pub.publish(self._rig_encode(sample, sample.stamp + (st.offset or 0.0)))
         st.published += 1
         return True
+
+
+def _frames(cols: Columns) -> list[RawFrame]:
+    """Return every frame of ``cols`` as tuples (the Python path)."""
+    return [frame_at(cols, i) for i in range(cols.stamp.size)]

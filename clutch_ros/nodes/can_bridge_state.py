@@ -15,6 +15,7 @@ from dataclasses import MISSING, dataclass, field, fields
 
 from clutch_ros.canbus import LogSource, PumpCommandGate, ReconnectingBus, RigStateAssembler
 from clutch_ros.canbus.counters import PublishPacer
+from clutch_ros.canbus.intake import CompiledIntake
 from clutch_ros.nodes.command_sources import CommandSources
 
 __all__ = ["BridgeState"]
@@ -30,6 +31,8 @@ class BridgeState:
             ``finalized``; the node's life)
         active: publishing rig_state and sending PumpRequests
         assembler, gate, pacer: the configured components (None while unconfigured)
+        intake: the compiled intake of clean rig frames (None: ``bridge.compiled`` off, a
+            log input, ``use_sim_time`` or ``bridge.publish_raw``; the Python path)
         bus: the open bus (None with a log input or unconfigured)
         source, log_thread: the log of ``input.log_file`` and its replay thread
         stop: set to stop the log replay
@@ -54,6 +57,7 @@ class BridgeState:
     assembler: RigStateAssembler | None = None
     gate: PumpCommandGate | None = None
     pacer: PublishPacer | None = None
+    intake: CompiledIntake | None = None
     bus: ReconnectingBus | None = None
     source: LogSource | None = None
     log_thread: threading.Thread | None = None

@@ -142,7 +142,8 @@ def node_status(state: BridgeState, logger, idle_timeout: float):
 
     Unconfigured: its lifecycle state only. Otherwise :func:`bridge_status` with the node's
     own values (lifecycle state, rig_state published, stale groups, the largest publishing lag
-    since the previous report [s], command publishers or the log replay); the message starts
+    since the previous report [s], the frames taken by the compiled intake (0: all in Python),
+    command publishers or the log replay); the message starts
     with the state unless active. An idle bus (no new rig frame for ``idle_timeout`` [s]) while
     active logs one warning on ``logger``, and one line when frames come back.
     """
@@ -161,7 +162,8 @@ def node_status(state: BridgeState, logger, idle_timeout: float):
              "stale_samples": state.stale_samples,
              "stale_groups": ", ".join(state.stale_groups or []),
              "receive_lag_max_s": state.lag_max,
-             "foreign_pump_requests": state.foreign_pump_requests}
+             "foreign_pump_requests": state.foreign_pump_requests,
+             "frames_compiled": state.intake.taken if state.intake is not None else 0}
     source, thread = state.source, state.log_thread
     if source is None:
         extra.update(state.sources.diagnose())

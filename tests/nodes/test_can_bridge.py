@@ -226,6 +226,9 @@ def test_rig_state_pump_requests_watchdog_and_limits(tmp_path):
                              "a /diagnostics report of rig_sim after the commands")
                 bridge_view, rig_after = _diag(diags, "/can_bridge"), _diag(diags, "/rig_sim")
                 assert all(p.alive() for p in procs)
+                # bridge.compiled (the default): the kernel took the rig's clean frames
+                assert int(bridge_view["frames_compiled"]) > 0.5 * int(
+                    bridge_view["frames_total"]), bridge_view
         finally:
             for p in procs:
                 p.stop()
