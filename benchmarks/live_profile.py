@@ -36,6 +36,8 @@ __all__ = ["DEFAULT_TARGETS", "main", "measure"]
 DEFAULT_TARGETS = {
     "can_bridge": (
         "clutch_ros.canbus.bus:ReconnectingBus.recv_batch",
+        "clutch_ros.canbus.bus:ReconnectingBus.recv_columns",
+        "clutch_ros.canbus.udp_columns:drop_echoes",
         "clutch_ros.nodes.can_bridge_receive:ReceiveSide._on_frames",
         "clutch_ros.canbus.assembler:RigStateAssembler.feed_frame",
         "clutch_ros.canbus.intake:CompiledIntake.run",
