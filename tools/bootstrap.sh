@@ -121,6 +121,6 @@ EOF
 chmod +x "$venv/bin/clutch"
 
 # --- 6. compiled code into numba's cache (a can_bridge's first configure then loads it) ----
-"$vpy" -c 'import sys; from clutch_ros.canbus.intake import warm_up; r = warm_up(); r and print(f"note: the can_bridge decodes in Python: {r}", file=sys.stderr)' \
+"$vpy" -c 'import sys; from clutch_ros.canbus.udp_columns import warm_up; r = warm_up(); r and print(f"note: the can_bridge decodes in Python: {r}", file=sys.stderr)' \
     || die "warming the compiled CAN intake failed"
 say "environment ready: $venv"

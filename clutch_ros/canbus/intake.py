@@ -15,12 +15,12 @@ live sample and paced (:meth:`RigStateAssembler.feed_frame`, ``ReceiveSide._on_f
 * every frame at which the pacer publishes, so the caller publishes the sample as of it.
 
 The result is the Python path's, frame for frame: the same counters, samples, pacer state
-and publications (``tests/canbus/test_intake.py`` runs both on the same random traffic).
+and publications (``tests/nodes/test_can_bridge_intake.py`` runs both on the same traffic).
 
 Compilation: numba compiles :mod:`~clutch_ros.canbus.intake_kernel` when the first
-:class:`CompiledIntake` is made (``cache=True``: ~4 s once per install -- ``tools/bootstrap.sh``
-does it, :func:`warm_up` -- then ~1 s to load from the cache in the folder of
-:func:`clutch_ros.model.kernel.numba_cache_dir`). When numba is missing or fails, the reason
+:class:`CompiledIntake` is made (``cache=True``: ~4 s once per install, which
+``tools/bootstrap.sh`` does with :func:`clutch_ros.canbus.udp_columns.warm_up`; then ~1 s
+to load from the cache in the folder of :func:`clutch_ros.model.kernel.numba_cache_dir`). When numba is missing or fails, the reason
 is logged once and kept in :func:`unavailable_reason`, :attr:`CompiledIntake.ready` is
 False, and the caller uses the Python path.
 """
@@ -157,13 +157,10 @@ def frame_at(cols: Columns, i: int) -> RawFrame:
 def warm_up() -> str | None:
     """Compile the kernel now (into numba's cache); return why it cannot be, else None.
 
-    ``tools/bootstrap.sh`` calls it after an install, so a bridge's first start loads the
-    compiled code instead of compiling for seconds beside its receive thread.
+    :func:`clutch_ros.canbus.udp_columns.warm_up` (``tools/bootstrap.sh`` after an install)
+    calls it, so a bridge's first start loads the compiled code instead of compiling it.
     """
     _compiled()
-    from clutch_ros.canbus.udp_columns import available  # (it imports this module)
-
-    available()
     return unavailable_reason()
 
 

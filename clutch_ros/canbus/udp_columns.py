@@ -32,10 +32,18 @@ import numpy as np
 
 from clutch_ros.canbus import udp_kernel as kern
 from clutch_ros.canbus.batch import UdpBatchReader
-from clutch_ros.canbus.intake import Columns, compiled_functions, compress, frame_at, take
+from clutch_ros.canbus.intake import (
+    Columns,
+    compiled_functions,
+    compress,
+    frame_at,
+    take,
+    unavailable_reason,
+)
+from clutch_ros.canbus.intake import warm_up as intake_warm_up
 from clutch_ros.canbus.udp import EchoFilter
 
-__all__ = ["ColumnReader", "available", "drop_echoes"]
+__all__ = ["ColumnReader", "available", "drop_echoes", "warm_up"]
 
 #: struct mmsghdr on LP64 Linux: struct msghdr (56 bytes) and msg_len
 _MMSGHDR = np.dtype({"names": ["name", "namelen", "iov", "iovlen", "control", "controllen",
@@ -166,6 +174,17 @@ class ColumnReader:
             cols.data[base:base + len(data)] = np.frombuffer(data, np.uint8)
         view = take(cols, slice(0, n))
         return view if keep is None else compress(view, keep)
+
+
+def warm_up() -> str | None:
+    """Compile the can_bridge's kernels (intake, parser) into numba's cache now.
+
+    Returns why they cannot be used, else None. ``tools/bootstrap.sh`` calls it after an
+    install, so a bridge's first configure loads them instead of compiling for seconds.
+    """
+    reason = intake_warm_up()
+    available()
+    return reason or unavailable_reason()
 
 
 def available() -> bool:
