@@ -9,7 +9,7 @@ live sample and paced (:meth:`RigStateAssembler.feed_frame`, ``ReceiveSide._on_f
 * once per batch, what the run of frames changed (counters, rolling counters, the newest
   time; the live sample from each frame key's newest payload, decoded and written by the
   assembler's own Python code, in the order the frames came);
-* every frame that is not a clean rig frame (errors, foreign identifiers, bad checksums,
+* every frame that is neither a clean rig frame nor a foreign one (errors, bad checksums,
   values out of range...: :mod:`~clutch_ros.canbus.intake_kernel`), which the caller feeds
   through the Python path, so the rare cases keep one implementation;
 * every frame at which the pacer publishes, so the caller publishes the sample as of it.
@@ -20,8 +20,9 @@ and publications (``tests/nodes/test_can_bridge_intake.py`` runs both on the sam
 Compilation: numba compiles :mod:`~clutch_ros.canbus.intake_kernel` when the first
 :class:`CompiledIntake` is made (``cache=True``: ~4 s once per install, which
 ``tools/bootstrap.sh`` does with :func:`clutch_ros.canbus.udp_columns.warm_up`; then ~1 s
-to load from the cache in the folder of :func:`clutch_ros.model.kernel.numba_cache_dir`). When numba is missing or fails, the reason
-is logged once and kept in :func:`unavailable_reason`, :attr:`CompiledIntake.ready` is
+to load from the cache in the folder of :func:`clutch_ros.model.kernel.numba_cache_dir`).
+When numba is missing or fails, the reason is logged once and kept in
+:func:`unavailable_reason`, :attr:`CompiledIntake.ready` is
 False, and the caller uses the Python path.
 """
 
