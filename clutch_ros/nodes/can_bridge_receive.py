@@ -144,7 +144,11 @@ class ReceiveSide:
                 self._feed_frames(_frames(cols)[i:])
                 return
             if key >= 0:
-                self._publish_latest(pacer.on_frame, key, bus_time=True)
+                try:  # (as in _feed_frames: counted; the receive thread must live)
+                    self._publish_latest(pacer.on_frame, key, bus_time=True)
+                except Exception as err:  # noqa: BLE001 - e.g. the context shut down
+                    assert st.assembler is not None
+                    st.assembler.on_error(err)
             elif i < n:  # no clean rig frame: the Python path, then the kernel again
                 self._feed_frames([frame_at(cols, i)])
                 i += 1
