@@ -94,7 +94,7 @@ def _pub_main(argv: list[str]) -> int:
     rclpy.init(args=[sys.argv[0], *argv[4:]])
     node = rclpy.create_node(f"bench_pub_{os.getpid()}", start_parameter_services=False,
                              enable_rosout=False)  # the instrument: nothing it does not need
-    _realtime(priority)
+    realtime(priority)
     pub = node.create_publisher(RigState, "rig_state", sensor_qos())
     msg = RigState()
     msg.actuating_pressure, msg.lamella_temperature, msg.slip_speed = 20e5, 40.0, 1.047
@@ -128,7 +128,7 @@ def _pub_main(argv: list[str]) -> int:
     return 0
 
 
-def _realtime(priority: int) -> str:
+def realtime(priority: int) -> str:
     """SCHED_FIFO at ``priority`` with locked memory for this process (0: leave it); the outcome."""
     if not priority:
         return "normal policy"
@@ -174,7 +174,7 @@ def _measure(cmd: list[str], out_topic: str, out_type, rates: list[float], secon
     node.create_subscription(out_type, out_topic, on_output, qos, raw=True)
     executor = LeanExecutor()
     executor.add_node(node)
-    sink_rt = _realtime(priority)
+    sink_rt = realtime(priority)
     spin = threading.Thread(target=executor.spin, daemon=True)
     spin.start()
     under_test = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL,

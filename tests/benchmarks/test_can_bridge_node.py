@@ -47,3 +47,24 @@ def test_sustained_mode_accounts_for_every_frame(tmp_path, capsys, ros_env):
     assert result["latency"]["samples"] > 50
     print_table(result)
     assert "can_bridge node" in capsys.readouterr().out
+
+
+def test_sustained_realtime_option_reports_what_the_os_did(tmp_path, ros_env):
+    """``--realtime``: the bridge and the receiver ask for SCHED_FIFO and the run says the outcome.
+
+    Applied or refused (a machine may refuse it), the run goes on and reports which.
+    """
+    import json
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "benchmarks.can_bridge_node", "--sustained",
+                          "--seconds", "1", "--rate", "3000", "--realtime", "10", "--json"],
+                         capture_output=True, text=True, timeout=180, check=True)
+    result = json.loads(out.stdout)
+    assert result["realtime"].startswith(("real-time options applied: SCHED_FIFO priority 10",
+                                          "real-time options refused: SCHED_FIFO priority 10"))
+    assert result["bridge"]["received"] + result["bridge"]["kernel_drops"] == 3000
+    bad = subprocess.run([sys.executable, "-m", "benchmarks.can_bridge_node", "--sustained",
+                          "--realtime", "100"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "a priority 1..99" in bad.stderr
