@@ -325,6 +325,9 @@ class RigCanPort:
         ``now`` [s] is the receive time recorded for the requests (the simulation clock, so a
         non-real-time run stays deterministic). Other frames are counted and ignored.
         """
+        recv_batch = getattr(self.bus, "recv_batch", None)
+        if recv_batch is not None:  # a ReconnectingBus: its checked reader (no can.Message each)
+            return self._poll_batch(recv_batch, now, max_frames)
         valid = 0
         for _ in range(max_frames):
             try:
@@ -338,6 +341,30 @@ class RigCanPort:
                     or msg.arbitration_id != self._request_key):
                 self.other_frames += 1
                 continue
+            valid += self.monitor.feed(msg, now)
+        return valid
+
+    def _poll_batch(self, recv_batch, now: float, max_frames: int) -> int:
+        """:meth:`poll` through :meth:`ReconnectingBus.recv_batch`.
+
+        On udp_multicast that reader checks each datagram before python-can sees it: a
+        datagram whose ``data`` is a huge integer made python-can's own ``recv`` allocate
+        that many bytes (2**33: the simulated rig was killed for its memory); the reader
+        counts it as malformed (``malformed_frames``) instead. Other interfaces: the bus's
+        ``recv``, as before.
+        """
+        try:
+            frames = recv_batch(0.0, max_frames)
+        except (can.CanError, OSError):
+            return 0
+        valid, key = 0, self._request_key
+        for stamp, ident, ext, remote, error, fd, dlc, data in frames:
+            self.received += 1
+            if error or remote or ext or ident != key:
+                self.other_frames += 1
+                continue
+            msg = can.Message(timestamp=stamp, arbitration_id=ident, is_extended_id=False,
+                              is_fd=fd, dlc=dlc, data=data)
             valid += self.monitor.feed(msg, now)
         return valid
 

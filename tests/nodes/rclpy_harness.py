@@ -138,17 +138,25 @@ def assert_bad_settings_fail_at_start(node: str, cases: dict, env: dict) -> None
     Each must exit 2 with exactly one ``<node>: error: ...`` line containing ``text`` and no
     traceback (the cases run in parallel).
     """
+    import signal
     import subprocess
     import sys
 
     from tests.conftest import REPO
 
+    # faulthandler: a process that hangs is stopped with SIGABRT and prints every thread's stack
     procs = {name: subprocess.Popen(
-        [sys.executable, "-m", f"clutch_ros.nodes.{node}", "--ros-args", *args],
-        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        [sys.executable, "-X", "faulthandler", "-m", f"clutch_ros.nodes.{node}", "--ros-args",
+         *args], cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         for name, (args, _) in cases.items()}
     for name, proc in procs.items():
-        out, err = proc.communicate(timeout=60)
+        try:
+            out, err = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGABRT)
+            out, err = proc.communicate(timeout=30)
+            raise AssertionError(f"{node} {name}: no exit within 60 s; its stacks:\n{err}") \
+                from None
         assert proc.returncode == 2, (name, proc.returncode, out, err)
         assert "Traceback" not in err, (name, err)
         lines = [line for line in err.splitlines() if line.startswith(f"{node}: error:")]

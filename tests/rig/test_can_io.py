@@ -1,6 +1,7 @@
 """RigCanPort and RigSimulator over python-can's virtual bus, decoded with the RigDatabase."""
 
 import threading
+import time
 import uuid
 
 import can
@@ -262,3 +263,42 @@ def test_rig_frames_skip_the_range_check_only_for_values_already_clamped(
         values = _clamped(db, port.frame_values(spec.name, signals, 0.1))
         assert frame.data == bytearray(db.encode(spec.name, values, counter=counter,
                                                  strict=True)), spec.name
+
+
+def test_pump_requests_over_udp_survive_a_gigabyte_payload_count(db):
+    """On a ReconnectingBus over udp_multicast the port reads through ``recv_batch``.
+
+    A datagram whose ``data`` is an integer (python-can: that many zero bytes, allocated
+    before its frame check; 2**33 killed the simulated rig for its memory) is counted as
+    malformed; the valid requests around it are verified as on any bus, and the rig's own
+    frames (echoes) never reach the monitor.
+    """
+    import resource
+
+    import msgpack
+
+    from clutch_ros.canbus.bus import BusConfig, ReconnectingBus
+    from tests.canbus.recorder import DatagramSender, _frame_dict, private_group
+
+    group, udp_port = private_group()
+    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": udp_port})
+    codec = PumpRequestCodec(db)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # [KiB]
+    with ReconnectingBus(config) as rig_bus, ReconnectingBus(config) as bridge, \
+            DatagramSender(group, udp_port) as junk:
+        port = RigCanPort(rig_bus, db)
+        port.send_due(0.0, RigPlant().step(1e-3, 0.0, 0.0))  # own frames: echoes to skip
+        send_requests(bridge, codec, [10 * BAR], [3])
+        junk.send(msgpack.packb(_frame_dict(arbitration_id=0x80, data=2**33, dlc=8),
+                                use_bin_type=True))
+        send_requests(bridge, codec, [12 * BAR, 30 * BAR], [4, 6])  # 6: a counter jump
+        valid, deadline = 0, time.monotonic() + 10.0
+        while port.received < 3 and time.monotonic() < deadline:  # (delivery is async)
+            valid += port.poll(0.0)
+            time.sleep(0.005)
+        assert (port.received, valid, port.other_frames) == (3, 2, 0)
+        assert port.monitor.bad_counter == 1
+        assert port.latest_request.pressure == pytest.approx(12 * BAR)
+        assert rig_bus.status().malformed_by_reason == {"invalid_frame": 1}
+    grown = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before
+    assert grown < 200_000, f"{grown} KiB more"  # python-can's recv alone: 8 GiB
