@@ -62,20 +62,6 @@ def test_batches_equal_python_cans_frames_and_malformed_counts():
         assert batched.status().disconnects == 0
 
 
-def test_own_frames_are_removed_from_batches_others_kept():
-    group, port = private_group()
-    config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
-    with ReconnectingBus(config) as bus, open_bus(config) as peer:
-        own = can.Message(arbitration_id=0x80, is_extended_id=False, data=bytes(8))
-        bus.send(own)
-        peer.send(own)  # the same frame from another node: kept
-        got = _read_all(lambda: bus.recv_batch(0.5), 1)
-        time.sleep(0.1)
-        got += bus.recv_batch(0.1)
-        assert [_fields(f) for f in got] == [_fields(message_frame(own))]
-        assert bus.own_echoes == 1
-
-
 def test_a_bus_without_the_udp_socket_goes_through_recv():
     config = BusConfig(interface="virtual", channel=f"v-{uuid.uuid4().hex}")
     with ReconnectingBus(config) as bus, open_bus(config) as peer:

@@ -121,16 +121,18 @@ def test_an_fd_bus_keeps_fd_frames() -> None:
     assert any(f[5] for f in got)
 
 
-def test_own_frames_are_removed_from_columns_others_kept() -> None:
+@pytest.mark.parametrize("reader", ["recv_batch", "recv_columns"])
+def test_own_frames_are_removed_others_kept(reader: str) -> None:
     group, port = private_group()
     config = BusConfig(interface="udp_multicast", channel=group, extra={"port": port})
     with ReconnectingBus(config) as bus, open_bus(config) as peer:
+        read = getattr(bus, reader)
         own = can.Message(arbitration_id=0x80, is_extended_id=False, data=bytes(8))
         bus.send(own)
         peer.send(own)  # the same frame from another node: kept
-        got = _read(lambda: bus.recv_columns(0.5), 1)
+        got = _read(lambda: read(0.5), 1)
         time.sleep(0.1)
-        got += _as_frames(bus.recv_columns(0.1))
+        got += _as_frames(read(0.1))
         assert [f[1:] for f in got] == [(0x80, False, False, False, False, 8, bytes(8))]
         assert bus.own_echoes == 1
 
