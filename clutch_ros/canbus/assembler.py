@@ -284,6 +284,76 @@ class RigStateAssembler(can.Listener):
         with self._lock:
             return self._counters.rates(now)
 
+    # -- the compiled intake's access (clutch_ros.canbus.intake: this class's twin) ------------
+
+    @property
+    def lock(self) -> threading.Lock:
+        """The lock of the assembler's state.
+
+        A caller holds it around :meth:`counter_state`, its own work and
+        :meth:`apply_frames`, so they act as one step.
+        """
+        return self._lock
+
+    def cycle_time(self, key: int) -> float | None:
+        """Return the DBC cycle time [s] of frame ``key`` (None: not cyclic or unknown)."""
+        return self._cycle.get(key)
+
+    def counter_state(self, keys: Iterable[int]) -> tuple[list[tuple[float, int] | None],
+                                                          float | None]:
+        """Return the rolling counters of ``keys`` and the newest decoded frame's bus time.
+
+        Per key its newest counter ``(bus time [s], value)`` or None; the bus time [s] or
+        None before any frame. Call with :attr:`lock` held.
+        """
+        last = self._last_counter
+        return [last.get(key) for key in keys], self._newest_time
+
+    def apply_frames(self, counts: Mapping[str, int], unknown: Iterable[tuple[int, int]],
+                     per_key: Iterable[tuple[int, int, tuple[float, int] | None]],
+                     newest: float | None, fields: Iterable[tuple[str, int, float | int | bool]],
+                     derive: tuple[bool, bool], filled: Iterable[tuple[int, float]]) -> None:
+        """Apply what a run of clean rig frames did, as :meth:`feed_frame` would have.
+
+        ``counts``: additions to the :class:`FrameCounters` fields named; ``unknown``:
+        ``(frame key, frames)`` of foreign frames in the order first seen (counted as
+        :meth:`FrameCounters.count_unknown` does, not in ``counts``); ``per_key``:
+        ``(frame key, frames, newest rolling counter or None)``; ``newest``: the newest decoded
+        frame's bus time [s] (None: unchanged); ``fields``: ``(RigSample field, element or -1,
+        value)`` in the order written; ``derive``: (slip_speed, has_measured_torque) to derive
+        as the last frame's fill left them (``_filler``); ``filled``: ``(frame key, bus time
+        [s])`` of the frames whose values were written. Call with :attr:`lock` held.
+        """
+        c = self._counters
+        for name, n in counts.items():
+            setattr(c, name, getattr(c, name) + n)
+        for key, n in unknown:
+            c.count_unknown(key, n)
+        last = self._last_counter
+        for key, n, counter in per_key:
+            c.per_id[key] += n
+            if counter is not None:
+                last[key] = counter
+        if newest is not None:
+            self._newest_time = newest
+        sample = self._live
+        for name, element, value in fields:
+            if element >= 0:
+                array = getattr(sample, name)
+                if not array:
+                    array = [_NAN] * ARRAY_LEN[name]
+                    setattr(sample, name, array)
+                array[element] = value
+            else:
+                setattr(sample, name, value)
+        if derive[0]:
+            sample.slip_speed = sample.input_speed - sample.output_speed
+        if derive[1]:
+            sample.has_measured_torque = math.isfinite(sample.measured_torque)
+        for key, stamp in filled:
+            self._stamps[key] = stamp
+            self._rejected.discard(key)
+
     @property
     def newest_time(self) -> float | None:
         """Bus timestamp [s] of the newest decoded frame, None before any."""

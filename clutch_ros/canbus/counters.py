@@ -155,16 +155,16 @@ class FrameCounters:
             unknown_untracked=self.unknown_untracked,
         )
 
-    def count_unknown(self, key: int) -> None:
-        """Count a data frame whose frame ``key`` is not in the DBC (bounded memory)."""
-        self.unknown_frames += 1
+    def count_unknown(self, key: int, n: int = 1) -> None:
+        """Count ``n`` data frames whose frame ``key`` is not in the DBC (bounded memory)."""
+        self.unknown_frames += n
         count = self.unknown_ids.get(key)
         if count is not None:
-            self.unknown_ids[key] = count + 1
+            self.unknown_ids[key] = count + n
         elif len(self.unknown_ids) < UNKNOWN_ID_CAPACITY:
-            self.unknown_ids[key] = 1
+            self.unknown_ids[key] = n
         else:
-            self.unknown_untracked += 1
+            self.unknown_untracked += n
 
     def rates(self, now: float) -> tuple[float, dict[int, float]]:
         """Return ``(total [frames/s], {frame key: frames/s})`` since the previous call.

@@ -83,6 +83,17 @@ class FastDecoder:
         self.compiled = frozenset(self._tables)
         self._slow: Callable[..., dict[str, float | int]] = db.decode
 
+    def table(self, key: int) -> tuple[str, int, tuple[_Field, ...], bool,
+                                       tuple[tuple[str, float, float], ...]] | None:
+        """Return frame ``key``'s decoding table (None: decoded by cantools).
+
+        ``(name, length, fields, e2e, ranges)``; each field ``(signal, start bit, mask, sign
+        bit, scale, offset or None, factor)``, each range ``(signal, minimum, maximum)`` [SI]:
+        what :meth:`decode` applies, for a compiled twin of it
+        (:mod:`clutch_ros.canbus.intake`).
+        """
+        return self._tables.get(key)
+
     def decode(self, key: int, data: bytes | bytearray) -> dict[str, float | int]:
         """Return ``{signal: SI value}`` of a payload of frame ``key`` (a DBC frame).
 

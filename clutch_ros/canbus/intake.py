@@ -29,7 +29,6 @@ False, and the caller uses the Python path.
 from __future__ import annotations
 
 import logging
-import math
 import os
 import threading
 from collections.abc import Callable, Collection, Sequence
@@ -39,9 +38,9 @@ from typing import Any, NamedTuple, cast
 import numpy as np
 
 from clutch_ros.canbus import intake_kernel as kern
-from clutch_ros.canbus.assembler import ARRAY_LEN, PUMP_FAULTS, SPECIAL_FIELDS, RigStateAssembler
+from clutch_ros.canbus.assembler import PUMP_FAULTS, SPECIAL_FIELDS, RigStateAssembler
 from clutch_ros.canbus.batch import RawFrame
-from clutch_ros.canbus.counters import UNKNOWN_ID_CAPACITY, PublishPacer
+from clutch_ros.canbus.counters import PublishPacer
 from clutch_ros.canbus.dbc import crc8_table
 
 __all__ = ["Columns", "CompiledIntake", "columns", "compiled_functions", "compress", "frame_at",
@@ -237,7 +236,7 @@ class CompiledIntake:
         scan = self._scan
         assert scan is not None  # (ready)
         asm, pacer = self._asm, self._pacer
-        with asm._lock:  # noqa: SLF001 - the assembler's twin
+        with asm.lock:
             self._load(asm, pacer, active)
             nxt, key, _ = scan(*cols, start, *self._t.scan, *self._t.writes,
                                self._counts, self._per_id, self._ctr_has, self._ctr_stamp,
@@ -255,72 +254,45 @@ class CompiledIntake:
         self._per_id[:] = 0
         self._fill_seq[:] = -1
         self._written[:] = 0
-        last = asm._last_counter  # noqa: SLF001
-        for s, key in enumerate(self._keys):
-            entry = last.get(key)
+        counters, newest = asm.counter_state(self._keys)
+        for s, entry in enumerate(counters):
             self._ctr_has[s] = entry is not None
             if entry is not None:
                 self._ctr_stamp[s], self._ctr_val[s] = entry
-        newest = asm._newest_time  # noqa: SLF001
         self._newest[:] = (0.0, 0.0) if newest is None else (1.0, newest)
         pacer.export_state(self._pacer_state)
         self._pacer_state[kern.P_ACTIVE] = 1.0 if active else 0.0
 
     def _store(self, asm: RigStateAssembler, pacer: PublishPacer) -> None:
-        keys, c, counts = self._keys, asm._counters, self._counts.tolist()  # noqa: SLF001
-        c.frames_total += counts[kern.C_TOTAL]
-        c.data_frames += counts[kern.C_DATA]
-        c.decoded_frames += counts[kern.C_DECODED]
-        c.dropped_frames += counts[kern.C_DROPPED]
-        c.counter_repeats += counts[kern.C_REPEATS]
-        if counts[kern.C_UNKNOWN]:  # (FrameCounters.count_unknown, a key at a time)
-            c.unknown_frames += counts[kern.C_UNKNOWN]
-            ids = c.unknown_ids
-            for key, n in zip(self._unknown_keys[:counts[kern.C_UNKNOWN_KEYS]].tolist(),
-                              self._unknown_counts[:counts[kern.C_UNKNOWN_KEYS]].tolist(),
-                              strict=True):
-                if key in ids:
-                    ids[key] += n
-                elif len(ids) < UNKNOWN_ID_CAPACITY:
-                    ids[key] = n
-                else:
-                    c.unknown_untracked += n
-        last = asm._last_counter  # noqa: SLF001
-        for s in np.flatnonzero(self._per_id).tolist():
-            key = keys[s]
-            c.per_id[key] += int(self._per_id[s])
-            if self._ctr_has[s]:
-                last[key] = (float(self._ctr_stamp[s]), int(self._ctr_val[s]))
-        if self._newest[0]:
-            asm._newest_time = float(self._newest[1])  # noqa: SLF001
+        keys, counts = self._keys, self._counts.tolist()
+        n_unknown = counts[kern.C_UNKNOWN_KEYS]
+        unknown = zip(self._unknown_keys[:n_unknown].tolist(),
+                      self._unknown_counts[:n_unknown].tolist(), strict=True)
+        per_key = [(keys[s], int(self._per_id[s]),
+                    (float(self._ctr_stamp[s]), int(self._ctr_val[s])) if self._ctr_has[s]
+                    else None) for s in np.flatnonzero(self._per_id).tolist()]
+        newest = float(self._newest[1]) if self._newest[0] else None
         seq = self._fill_seq.tolist()
-        if max(seq) < 0:
-            pacer.import_state(self._pacer_state)
-            return
-        sample, values, targets = asm._live, self._live.tolist(), self._t.targets  # noqa: SLF001
-        for t in np.flatnonzero(self._written).tolist():
-            name, element, kind = targets[t]
-            if element >= 0:
-                array = getattr(sample, name)
-                if not array:
-                    array = [math.nan] * ARRAY_LEN[name]
-                    setattr(sample, name, array)
-                array[element] = values[t]
-            elif kind == kern.W_VALUE:
-                setattr(sample, name, values[t])
-            else:
-                setattr(sample, name, bool(values[t]) if kind == kern.W_FLAG else int(values[t]))
-        derive, direct = self._t.slip
-        if _last(seq, derive) > _last(seq, direct):  # as the last frame's fill left it
-            sample.slip_speed = sample.input_speed - sample.output_speed
-        derive, direct = self._t.torque_valid
-        if _last(seq, derive) > _last(seq, direct):
-            sample.has_measured_torque = math.isfinite(sample.measured_torque)
-        stamps, rejected = asm._stamps, asm._rejected  # noqa: SLF001
-        for s, order in enumerate(seq):
-            if order >= 0:
-                stamps[keys[s]] = float(self._fill_stamp[s])
-                rejected.discard(keys[s])
+        fields: list[tuple[str, int, float | int | bool]] = []
+        derive, filled = (False, False), []
+        if max(seq) >= 0:
+            values, targets = self._live.tolist(), self._t.targets
+            for t in np.flatnonzero(self._written).tolist():
+                name, element, kind = targets[t]
+                value = values[t]
+                fields.append((name, element, value if element >= 0 or kind == kern.W_VALUE
+                               else bool(value) if kind == kern.W_FLAG else int(value)))
+            # derived as the last frame's fill left them
+            derive = (_last(seq, self._t.slip[0]) > _last(seq, self._t.slip[1]),
+                      _last(seq, self._t.torque_valid[0]) > _last(seq, self._t.torque_valid[1]))
+            filled = [(keys[s], float(self._fill_stamp[s]))
+                      for s, order in enumerate(seq) if order >= 0]
+        asm.apply_frames({"frames_total": counts[kern.C_TOTAL],
+                          "data_frames": counts[kern.C_DATA],
+                          "decoded_frames": counts[kern.C_DECODED],
+                          "dropped_frames": counts[kern.C_DROPPED],
+                          "counter_repeats": counts[kern.C_REPEATS]},
+                         unknown, per_key, newest, fields, derive, filled)
         pacer.import_state(self._pacer_state)
 
 
@@ -332,12 +304,11 @@ def _last(seq: list[int], slots: list[int]) -> int:
 def _tables(asm: RigStateAssembler, fallback: Collection[int],
             python_keys: frozenset[int]) -> _Tables:
     """Return the kernel's tables of ``asm`` (:mod:`~clutch_ros.canbus.intake_kernel`)."""
-    tables = asm.decoder._tables  # noqa: SLF001 - the compiled tables of its FastDecoder
     db, map_writes = asm.db, asm.map.writes
     rows = []
     for spec in db.frames:
         key = spec.key
-        table = tables.get(key)
+        table = asm.decoder.table(key)
         ok = (table is not None and key not in python_keys and spec.length <= 8
               and all(f[2].bit_length() <= kern.MAX_BITS for f in table[2]))
         rows.append((key, table if ok else None))
@@ -365,7 +336,7 @@ def _tables(asm: RigStateAssembler, fallback: Collection[int],
 
     for s, (key, table) in enumerate(rows):
         slots[s, kern.S_KEY] = key
-        cycle[s] = asm._cycle.get(key) or 0.0  # noqa: SLF001
+        cycle[s] = asm.cycle_time(key) or 0.0
         if table is None:
             continue
         _name, length, fields, e2e, ranges = table
