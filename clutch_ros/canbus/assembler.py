@@ -309,13 +309,16 @@ class RigStateAssembler(can.Listener):
         last = self._last_counter
         return [last.get(key) for key in keys], self._newest_time
 
-    def apply_frames(self, counts: Mapping[str, int], unknown: Iterable[tuple[int, int]],
+    def apply_frames(self, counts: tuple[int, int, int, int, int],
+                     unknown: Iterable[tuple[int, int]],
                      per_key: Iterable[tuple[int, int, tuple[float, int] | None]],
                      newest: float | None, fields: Iterable[tuple[str, int, float | int | bool]],
                      derive: tuple[bool, bool], filled: Iterable[tuple[int, float]]) -> None:
         """Apply what a run of clean rig frames did, as :meth:`feed_frame` would have.
 
-        ``counts``: additions to the :class:`FrameCounters` fields named; ``unknown``:
+        ``counts``: additions to the :class:`FrameCounters` ``frames_total``,
+        ``data_frames``, ``decoded_frames``, ``dropped_frames`` and ``counter_repeats``;
+        ``unknown``:
         ``(frame key, frames)`` of foreign frames in the order first seen (counted as
         :meth:`FrameCounters.count_unknown` does, not in ``counts``); ``per_key``:
         ``(frame key, frames, newest rolling counter or None)``; ``newest``: the newest decoded
@@ -325,8 +328,12 @@ class RigStateAssembler(can.Listener):
         [s])`` of the frames whose values were written. Call with :attr:`lock` held.
         """
         c = self._counters
-        for name, n in counts.items():
-            setattr(c, name, getattr(c, name) + n)
+        total, data, decoded, dropped, repeats = counts
+        c.frames_total += total
+        c.data_frames += data
+        c.decoded_frames += decoded
+        c.dropped_frames += dropped
+        c.counter_repeats += repeats
         for key, n in unknown:
             c.count_unknown(key, n)
         last = self._last_counter

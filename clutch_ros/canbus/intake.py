@@ -255,10 +255,10 @@ class CompiledIntake:
         self._fill_seq[:] = -1
         self._written[:] = 0
         counters, newest = asm.counter_state(self._keys)
-        for s, entry in enumerate(counters):
-            self._ctr_has[s] = entry is not None
-            if entry is not None:
-                self._ctr_stamp[s], self._ctr_val[s] = entry
+        # whole arrays at once: an element assignment each costs more
+        self._ctr_has[:] = [entry is not None for entry in counters]
+        self._ctr_stamp[:] = [entry[0] if entry is not None else 0.0 for entry in counters]
+        self._ctr_val[:] = [entry[1] if entry is not None else 0 for entry in counters]
         self._newest[:] = (0.0, 0.0) if newest is None else (1.0, newest)
         pacer.export_state(self._pacer_state)
         self._pacer_state[kern.P_ACTIVE] = 1.0 if active else 0.0
@@ -268,37 +268,42 @@ class CompiledIntake:
         n_unknown = counts[kern.C_UNKNOWN_KEYS]
         unknown = zip(self._unknown_keys[:n_unknown].tolist(),
                       self._unknown_counts[:n_unknown].tolist(), strict=True)
-        per_key = [(keys[s], int(self._per_id[s]),
-                    (float(self._ctr_stamp[s]), int(self._ctr_val[s])) if self._ctr_has[s]
-                    else None) for s in np.flatnonzero(self._per_id).tolist()]
-        newest = float(self._newest[1]) if self._newest[0] else None
+        per_id, has = self._per_id.tolist(), self._ctr_has.tolist()
+        stamps, values = self._ctr_stamp.tolist(), self._ctr_val.tolist()
+        per_key = [(keys[s], n, (stamps[s], values[s]) if has[s] else None)
+                   for s, n in enumerate(per_id) if n]
+        newest = self._newest.tolist()
         seq = self._fill_seq.tolist()
         fields: list[tuple[str, int, float | int | bool]] = []
         derive, filled = (False, False), []
         if max(seq) >= 0:
-            values, targets = self._live.tolist(), self._t.targets
-            for t in np.flatnonzero(self._written).tolist():
-                name, element, kind = targets[t]
-                value = values[t]
-                fields.append((name, element, value if element >= 0 or kind == kern.W_VALUE
-                               else bool(value) if kind == kern.W_FLAG else int(value)))
+            live, targets = self._live.tolist(), self._t.targets
+            for t, written in enumerate(self._written.tolist()):
+                if written:
+                    name, element, kind = targets[t]
+                    value = live[t]
+                    fields.append((name, element, value if element >= 0 or kind == kern.W_VALUE
+                                   else bool(value) if kind == kern.W_FLAG else int(value)))
             # derived as the last frame's fill left them
-            derive = (_last(seq, self._t.slip[0]) > _last(seq, self._t.slip[1]),
-                      _last(seq, self._t.torque_valid[0]) > _last(seq, self._t.torque_valid[1]))
-            filled = [(keys[s], float(self._fill_stamp[s]))
-                      for s, order in enumerate(seq) if order >= 0]
-        asm.apply_frames({"frames_total": counts[kern.C_TOTAL],
-                          "data_frames": counts[kern.C_DATA],
-                          "decoded_frames": counts[kern.C_DECODED],
-                          "dropped_frames": counts[kern.C_DROPPED],
-                          "counter_repeats": counts[kern.C_REPEATS]},
-                         unknown, per_key, newest, fields, derive, filled)
+            slip, valid = self._t.slip, self._t.torque_valid
+            derive = (_last(seq, slip[0]) > _last(seq, slip[1]),
+                      _last(seq, valid[0]) > _last(seq, valid[1]))
+            fill_stamps = self._fill_stamp.tolist()
+            filled = [(keys[s], fill_stamps[s]) for s, order in enumerate(seq) if order >= 0]
+        asm.apply_frames((counts[kern.C_TOTAL], counts[kern.C_DATA], counts[kern.C_DECODED],
+                          counts[kern.C_DROPPED], counts[kern.C_REPEATS]),
+                         unknown, per_key, newest[1] if newest[0] else None, fields, derive,
+                         filled)
         pacer.import_state(self._pacer_state)
 
 
 def _last(seq: list[int], slots: list[int]) -> int:
     """Return the newest fill order among ``slots`` in this run (-1: none filled)."""
-    return max((seq[s] for s in slots), default=-1)
+    best = -1
+    for s in slots:  # (one or two slots: a loop beats max() of a generator)
+        if seq[s] > best:
+            best = seq[s]
+    return best
 
 
 def _tables(asm: RigStateAssembler, fallback: Collection[int],
