@@ -7,8 +7,8 @@ live sample and paced (:meth:`RigStateAssembler.feed_frame`, ``ReceiveSide._on_f
 :func:`clutch_ros.canbus.intake_kernel.scan` (numba) and hands back to Python only:
 
 * once per batch, what the run of frames changed (counters, rolling counters, the newest
-  time; the live sample from each frame key's newest payload, decoded and written by the
-  assembler's own Python code, in the order the frames came);
+  time, the live sample's fields in the order the frames wrote them), which the assembler
+  applies itself (:meth:`RigStateAssembler.apply_frames`: its state stays in one class);
 * every frame that is neither a clean rig frame nor a foreign one (errors, bad checksums,
   values out of range...: :mod:`~clutch_ros.canbus.intake_kernel`), which the caller feeds
   through the Python path, so the rare cases keep one implementation;
