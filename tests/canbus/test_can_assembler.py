@@ -386,3 +386,47 @@ def test_publish_pacer_until_allowed_is_the_first_moment_any_frame_can_publish()
             pacer.on_frame(speed, now + 0.0002)
     assert max(waits) == pytest.approx(0.0092, abs=1e-6)  # a token per 10 ms, 0.8 ms gone
     assert 0.5 < sum(w > 0.0 for w in waits) / len(waits) < 1.0
+
+
+def test_apply_frames_leaves_what_feeding_the_same_frames_leaves(db):
+    """The compiled intake's way in (``counter_state``, ``apply_frames``) against ``feed``.
+
+    Two RigFast and a RigSpeed frame (counters 3 then 5: one lost frame), and two foreign
+    frames: fed to one assembler, described to another as the intake's kernel would.
+    """
+    from clutch_ros.canbus.counters import UNKNOWN_ID_CAPACITY
+
+    fast, speed = db.frame("RigFast").key, db.frame("RigSpeed").key
+    frames = rig_frames(db, t=1.0, counter=3)[:2] + [rig_frames(db, t=1.002, counter=5)[0]]
+    fed, applied = RigStateAssembler(db), RigStateAssembler(db)
+    for msg in frames:
+        fed.feed(msg)
+    for key in (0x700, 0x700):
+        fed.feed(can.Message(arbitration_id=key, is_extended_id=False, data=bytes(8)))
+    with applied.lock:
+        assert applied.counter_state([fast, speed]) == ([None, None], None)
+        applied.apply_frames(
+            (5, 5, 3, 1, 0), [(0x700, 2)], [(fast, 2, (1.002, 5)), (speed, 1, (1.0, 3))],
+            1.002, [("actuating_pressure", -1, 20e5), ("measured_torque", -1, 456.7),
+                    ("has_measured_torque", -1, True), ("input_speed", -1, 5.236),
+                    ("output_speed", -1, -0.5)],
+            (True, False), [(fast, 1.002), (speed, 1.0)])
+        assert applied.counter_state([fast, speed, 0x123]) == (
+            [(1.002, 5), (1.0, 3), None], 1.002)
+    assert applied.counters() == fed.counters()
+    a, f = applied.snapshot(), fed.snapshot()
+    for name in ("actuating_pressure", "measured_torque", "has_measured_torque", "input_speed",
+                 "output_speed", "slip_speed", "stamp", "stale_mask", "ages"):
+        assert getattr(a, name) == pytest.approx(getattr(f, name), abs=1e-4), name
+    assert applied.cycle_time(fast) == pytest.approx(0.001)
+    # an array element: the array is made (NaN elsewhere); the unknown table stays bounded
+    with applied.lock:
+        applied.apply_frames((0, 0, 0, 0, 0), [], [], None, [("ff_voltages", 2, 1.5)],
+                             (False, False), [])
+        applied.apply_frames((0, 0, 0, 0, 0), [(0x7000 + i, 3) for i in
+                                               range(UNKNOWN_ID_CAPACITY + 1)],
+                             [], None, [], (False, False), [])
+    s, c = applied.snapshot(), applied.counters()
+    assert s.ff_voltages[2] == 1.5 and sum(math.isnan(v) for v in s.ff_voltages) == 7
+    assert c.unknown_frames == 2 + 3 * (UNKNOWN_ID_CAPACITY + 1)
+    assert c.unknown_untracked == 2 * 3  # two new keys: 0x700 holds one of the places
