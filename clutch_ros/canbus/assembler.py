@@ -316,16 +316,18 @@ class RigStateAssembler(can.Listener):
                      derive: tuple[bool, bool], filled: Iterable[tuple[int, float]]) -> None:
         """Apply what a run of clean rig frames did, as :meth:`feed_frame` would have.
 
-        ``counts``: additions to the :class:`FrameCounters` ``frames_total``,
-        ``data_frames``, ``decoded_frames``, ``dropped_frames`` and ``counter_repeats``;
-        ``unknown``:
-        ``(frame key, frames)`` of foreign frames in the order first seen (counted as
-        :meth:`FrameCounters.count_unknown` does, not in ``counts``); ``per_key``:
-        ``(frame key, frames, newest rolling counter or None)``; ``newest``: the newest decoded
-        frame's bus time [s] (None: unchanged); ``fields``: ``(RigSample field, element or -1,
-        value)`` in the order written; ``derive``: (slip_speed, has_measured_torque) to derive
-        as the last frame's fill left them (``_filler``); ``filled``: ``(frame key, bus time
-        [s])`` of the frames whose values were written. Call with :attr:`lock` held.
+        * ``counts``: additions to the :class:`FrameCounters` ``frames_total``,
+          ``data_frames``, ``decoded_frames``, ``dropped_frames`` and ``counter_repeats``;
+        * ``unknown``: ``(frame key, frames)`` of foreign frames in the order first seen
+          (counted as :meth:`FrameCounters.count_unknown` does, not in ``counts``);
+        * ``per_key``: ``(frame key, frames, newest rolling counter or None)``;
+        * ``newest``: the newest decoded frame's bus time [s] (None: unchanged);
+        * ``fields``: ``(RigSample field, element or -1, value)`` in the order written;
+        * ``derive``: (slip_speed, has_measured_torque) to derive as the last frame's fill
+          left them (``_filler``);
+        * ``filled``: ``(frame key, bus time [s])`` of the frames whose values were written.
+
+        Call with :attr:`lock` held.
         """
         c = self._counters
         total, data, decoded, dropped, repeats = counts
