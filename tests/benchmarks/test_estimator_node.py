@@ -22,12 +22,12 @@ def test_a_priority_outside_1_to_99_is_refused_before_anything_runs(priority, ca
 
 
 def test_realtime_zero_leaves_the_policy_alone():
-    assert estimator_node._realtime(0) == "normal policy"
+    assert estimator_node.realtime(0) == "normal policy"
 
 
 def test_realtime_sets_fifo_on_the_process_or_says_why_not():
     # in a child process: SCHED_FIFO on the pytest process would outlive the test
-    code = ("import os; from benchmarks.estimator_node import _realtime; m = _realtime(7); "
+    code = ("import os; from benchmarks.estimator_node import realtime; m = realtime(7); "
             "print(m); print(os.sched_getscheduler(0) == os.SCHED_FIFO, "
             "os.sched_getparam(0).sched_priority)")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
