@@ -1,7 +1,9 @@
 """Every node stops with exit 0 on SIGINT and on SIGTERM, the way ``ros2 launch`` stops it.
 
 ``ros2 launch`` sends SIGINT, SIGTERM 5 s later and SIGKILL 5 s after that; a node must be
-gone with exit 0 before the first escalation. Each node here runs as a real process
+gone with exit 0 before the first escalation (a run still there then has failed: it is
+stopped with SIGABRT instead, and its node, run with ``-X faulthandler``, prints every
+thread's stack into the report). Each node here runs as a real process
 (``python -m clutch_ros.nodes.<node>``) on a loaded machine (two busy processes beside it)
 while this process publishes its inputs every few milliseconds, and a burst of them just
 before the signal, so that the signal can land while the node takes a message: that was the
@@ -88,9 +90,11 @@ class _Run:
                 self._send(self.signum, now)
             return True
         waited = now - self.signalled_at
-        if self.sent[-1] == "SIGINT" and waited > ESCALATION_S:
-            self._send(signal.SIGTERM, now)
-        elif self.sent[-1] == "SIGTERM" and waited > ESCALATION_S:
+        if len(self.sent) == 1 and waited > ESCALATION_S:
+            # launch would escalate now; the run has failed already, so stop it with
+            # SIGABRT instead: faulthandler (-X faulthandler) prints where every thread was
+            self._send(signal.SIGABRT, now)
+        elif waited > ESCALATION_S:
             self._send(signal.SIGKILL, now)
         return True
 
@@ -102,7 +106,7 @@ class _Run:
     def report(self) -> str:
         self.log.seek(0)
         return (f"{self.name}: exit {self.proc.returncode} after {self.sent}\n"
-                f"{self.log.read()[-3000:]}")
+                f"{self.log.read()[-6000:]}")  # (with SIGABRT: every thread's stack)
 
 
 class _Inputs:
@@ -143,7 +147,8 @@ class _Inputs:
 def _start(node: str, index: int, signum: int, env: dict, bag, rng) -> _Run:
     name = f"{node}_{index}"
     log = tempfile.TemporaryFile("w+")
-    proc = subprocess.Popen([sys.executable, "-m", f"clutch_ros.nodes.{node}", "--ros-args",
+    proc = subprocess.Popen([sys.executable, "-X", "faulthandler", "-m",
+                             f"clutch_ros.nodes.{node}", "--ros-args",
                              "-r", f"__node:={name}", *_ros_args(node, bag)],
                             cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT, text=True)
     return _Run(node, signum, name, proc, log, delay=rng.uniform(0.2, 1.5))
