@@ -99,13 +99,18 @@ def _compare(datagrams: list[bytes], frames: tuple[can.Message, ...], fd: bool =
             junk.send(payload)
         time.sleep(0.05)
         want = len(frames) + len(datagrams)  # an upper bound: malformed ones are dropped
+        start = time.time()
         ref = _read(lambda: batch_bus.recv_batch(0.2, limit=32), want, timeout=1.0)
         got = _read(lambda: columns_bus.recv_columns(0.2, limit=32), want, timeout=1.0)
         assert [_values_of(f) for f in got] == [_values_of(f) for f in ref]
         now = time.time()
         assert all(now - 30.0 < f[0] <= now for f in got)  # kernel receive times
+        # Both are the kernel's stamps of the same datagram, normally equal. A datagram that
+        # came before the kernel had switched its receive timestamps on (deferred work after
+        # the first socket asks for them; late on a busy machine) is stamped when each socket
+        # reads it (net/socket.c, __sock_recv_timestamp): up to the reads' span apart.
         for a, b in zip(got, ref, strict=True):
-            assert abs(a[0] - b[0]) < 0.5
+            assert abs(a[0] - b[0]) <= max(0.5, now - start)
         assert columns_bus.status().malformed_by_reason == batch_bus.status().malformed_by_reason
         assert columns_bus.status().disconnects == 0
         return got
