@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import can
 
+from clutch_ros.canbus.batch import frame_message
 from clutch_ros.canbus.dbc import RigDatabase
 from clutch_ros.canbus.errors import CanError, FrameDecodeError
 from clutch_ros.canbus.pump_codec import PumpRequestCodec
@@ -358,14 +359,13 @@ class RigCanPort:
         except (can.CanError, OSError):
             return 0
         valid, key = 0, self._request_key
-        for stamp, ident, ext, remote, error, fd, dlc, data in frames:
+        for frame in frames:
+            _stamp, ident, ext, remote, error = frame[:5]
             self.received += 1
             if error or remote or ext or ident != key:
                 self.other_frames += 1
                 continue
-            msg = can.Message(timestamp=stamp, arbitration_id=ident, is_extended_id=False,
-                              is_fd=fd, dlc=dlc, data=data)
-            valid += self.monitor.feed(msg, now)
+            valid += self.monitor.feed(frame_message(frame), now)
         return valid
 
     @property
