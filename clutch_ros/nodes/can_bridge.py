@@ -67,6 +67,7 @@ from clutch_ros.canbus import (
 from clutch_ros.canbus.counters import PublishPacer
 from clutch_ros.canbus.intake import CompiledIntake, unavailable_reason
 from clutch_ros.canbus.signal_map import SignalMap
+from clutch_ros.canbus.udp_columns import warm_up as load_compiled
 from clutch_ros.errors import ClutchError
 from clutch_ros.interfaces import CAN_FRAMES, PUMP_REQUEST, RIG_STATE
 from clutch_ros.nodes.can_bridge_params import (
@@ -92,6 +93,9 @@ from clutch_ros.nodes.renamed_params import declare_with_renames
 from clutch_ros.nodes.runner import run_node
 
 NAME = "can_bridge"
+#: loaded before rclpy.init (nodes/runner.py ``_preload``): the compiled intake and udp
+#: parser from numba's cache, ~1 s, >5 s beside busy processes; a stop meanwhile exits at once
+PRELOAD = load_compiled
 IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning
 OK, FAIL = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 
@@ -121,9 +125,17 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
         self.add_on_set_parameters_callback(self._check_params)
         self.add_post_set_parameters_callback(self._apply_params)
         if cfg["autostart"]:
-            for step in (self.trigger_configure, self.trigger_activate):
-                if step() != OK:
-                    raise self._failure or ClutchError(f"{step.__name__} failed")
+            try:
+                for step in (self.trigger_configure, self.trigger_activate):
+                    if step() != OK:
+                        raise self._failure or ClutchError(f"{step.__name__} failed")
+            except BaseException:
+                # the runner never gets this node: stop what configure started (receive and
+                # cycle threads, bus) and leave the graph now; left to the interpreter's exit,
+                # a stop signal during configure took ~4x longer to end the process
+                self.close()
+                self.destroy_node()
+                raise
 
     # -- lifecycle ------------------------------------------------------------------------
     def on_configure(self, state) -> TransitionCallbackReturn:
@@ -351,7 +363,7 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
 
 def main(args=None) -> int:
     """Console entry point: ``ros2 run clutch_ros can_bridge``; bad settings: one line, exit 2."""
-    return run_node(NAME, __doc__, PARAMS, CanBridgeNode, args)
+    return run_node(NAME, __doc__, PARAMS, CanBridgeNode, args, preload=PRELOAD)
 
 
 if __name__ == "__main__":

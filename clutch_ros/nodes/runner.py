@@ -125,33 +125,46 @@ class _StopSignals:
 
 
 def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[[], Node],
-             args: Sequence[str] | None = None) -> int:
+             args: Sequence[str] | None = None,
+             preload: Callable[[], object] | None = None) -> int:
     """Answer --help, or init rclpy, build the node with ``factory`` and spin until shutdown.
 
-    Bad settings (a ClutchError or rclpy ParameterException while building the node) print
-    one line ``<name>: error: ...`` and return 2, never a traceback (0 when a signal stopped
-    the start meanwhile: the error is then the stop's consequence).
+    ``preload``: slow set-up the node needs whatever its parameters (loading compiled code),
+    run before ``rclpy.init`` so that a stop meanwhile ends the process at once
+    (:func:`run_nodes`). Bad settings (a ClutchError or rclpy ParameterException while
+    building the node) print one line ``<name>: error: ...`` and return 2, never a traceback
+    (0 when a signal stopped the start meanwhile: the error is then the stop's consequence).
     """
     argv = list(sys.argv[1:] if args is None else args)
     if help_requested(argv):
         sys.stdout.write(format_help(name, doc, [*specs, *REALTIME_PARAMS]))
         return 0
     executor_kind, argv = executor_option(argv)
-    return run_nodes(name, [factory], argv, executor_kind)
+    return run_nodes(name, [factory], argv, executor_kind, preload)
 
 
 def run_nodes(name: str, factories: Sequence[Callable[[], Node]], argv: Sequence[str],
-              executor_kind: str = DEFAULT_EXECUTOR) -> int:
+              executor_kind: str = DEFAULT_EXECUTOR,
+              preload: Callable[[], object] | None = None) -> int:
     """Init rclpy with ``argv``, build each node and spin them all in one executor.
 
     :func:`run_node` for one node; :mod:`clutch_ros.nodes.composed` for several in one
     process. Exit codes and the handling of signals and bad settings as :func:`run_node`;
-    the nodes are closed and destroyed in reverse build order.
+    the nodes are closed and destroyed in reverse build order. ``preload`` runs first, in a
+    thread of its own (:func:`_preload`).
     """
     # rclpy's own handlers (SignalHandlerOptions.ALL, the default) turn SIGINT and SIGTERM
     # into a clean shutdown even while the executor waits in C; Python's only take note
     # (module docstring: a KeyboardInterrupt inside rclpy's C++ was an exit 1)
     stop = _StopSignals()
+    try:
+        preloaded = preload is None or _preload(preload, stop)
+    except BaseException:
+        stop.restore()
+        raise
+    if not preloaded:
+        stop.restore()
+        return 0
     rclpy.init(args=[sys.argv[0], *argv])
     nodes: list[Node] = []
     started = False
@@ -203,7 +216,41 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]], argv: Sequence
             node.destroy_node()
         rclpy.try_shutdown()
         stop.restore()
+        # nothing is collected any more: out of the exit's last collection, which walked
+        # numba's objects for ~0.6 s of CPU when a stop came before the gc.freeze above
+        # (more than ros2 launch's 5 s beside busy processes); 0.17 s with this
+        gc.freeze()
     return 0
+
+
+def _preload(work: Callable[[], object], stop: _StopSignals) -> bool:
+    """Run ``work`` in a daemon thread; return False if a stop signal came before it ended.
+
+    Why a thread: the can_bridge's compiled intake takes ~1 s to load from numba's cache on
+    an idle machine and more than 5 s beside busy processes (measured: SIGINT during its
+    load inside the lifecycle autostart was answered after ``ros2 launch``'s 5 s). Nothing
+    can interrupt an import, so the main thread waits beside it and, on a stop, returns at
+    once; the process then exits and the unfinished daemon thread with it (nothing was
+    started: no ROS context, no bus). An exception of ``work`` is raised here.
+    """
+    done = threading.Event()
+    failure: list[BaseException] = []
+
+    def target() -> None:
+        try:
+            work()
+        except BaseException as err:  # noqa: BLE001 - handed to the main thread
+            failure.append(err)
+        finally:
+            done.set()
+
+    threading.Thread(target=target, name="preload", daemon=True).start()
+    while not done.wait(0.05):  # (signal handlers run between the waits)
+        if stop.received:
+            return False
+    if failure:
+        raise failure[0]
+    return not stop.received
 
 
 def start_realtime(node) -> Diagnostics | None:
