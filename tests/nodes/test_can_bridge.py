@@ -22,6 +22,8 @@ import bisect
 import math
 import os
 import statistics
+import subprocess
+import sys
 import time
 
 import can
@@ -551,3 +553,34 @@ def test_a_numbered_channel_works_as_the_launch_files_pass_it(ros_env):
         hardware = {s.hardware_id for a in diags for s in a.status if s.name == "/can_bridge"}
         assert proc.poll() is None
     assert hardware == {"simulated rig (virtual:0)"}
+
+
+#: a bridge whose activation fails after configure opened the bus and started its threads
+FAILED_AUTOSTART = """
+import threading
+import rclpy
+from rclpy.lifecycle import TransitionCallbackReturn
+from clutch_ros.nodes.can_bridge import CanBridgeNode
+
+CanBridgeNode.on_activate = lambda self, state: TransitionCallbackReturn.FAILURE
+rclpy.init(args=["probe", "--ros-args", "-p", "can.interface:=virtual",
+                 "-p", "can.channel:=failed_autostart"])
+try:
+    CanBridgeNode()
+except Exception as err:
+    print("raised", type(err).__name__, err)
+print("threads", sorted(t.name for t in threading.enumerate()))
+rclpy.shutdown()
+"""
+
+
+def test_a_failed_autostart_stops_what_configure_started(ros_env):
+    # the runner never receives a node whose constructor raised: the node itself must stop
+    # its receive and cycle threads and close the bus (a stop signal during configure ends
+    # the same way, tests/nodes/test_shutdown.py)
+    out = subprocess.run([sys.executable, "-c", FAILED_AUTOSTART], cwd=REPO, env=ros_env,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert "raised ClutchError trigger_activate failed" in out.stdout, out.stdout
+    threads = next(line for line in out.stdout.splitlines() if line.startswith("threads"))
+    assert "can_rx" not in threads and "can_cycle" not in threads, threads
