@@ -66,8 +66,8 @@ from clutch_ros.canbus import (
 )
 from clutch_ros.canbus.counters import PublishPacer
 from clutch_ros.canbus.intake import CompiledIntake, unavailable_reason
+from clutch_ros.canbus.intake import warm_up as load_intake
 from clutch_ros.canbus.signal_map import SignalMap
-from clutch_ros.canbus.udp_columns import warm_up as load_compiled
 from clutch_ros.errors import ClutchError
 from clutch_ros.interfaces import CAN_FRAMES, PUMP_REQUEST, RIG_STATE
 from clutch_ros.nodes.can_bridge_params import (
@@ -90,12 +90,9 @@ from clutch_ros.nodes.diagnostics import Diagnostics, LogThrottle
 from clutch_ros.nodes.parameters import HARDWARE_ID_PARAM
 from clutch_ros.nodes.qos import publisher_qos
 from clutch_ros.nodes.renamed_params import declare_with_renames
-from clutch_ros.nodes.runner import run_node
+from clutch_ros.nodes.runner import run_interruptibly, run_node
 
 NAME = "can_bridge"
-#: loaded before rclpy.init (nodes/runner.py ``_preload``): the compiled intake and udp
-#: parser from numba's cache, ~1 s, >5 s beside busy processes; a stop meanwhile exits at once
-PRELOAD = load_compiled
 IDLE_TIMEOUT = 1.0  # [s] no new rig frame for this long: one warning
 OK, FAIL = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 
@@ -164,6 +161,9 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
                 st.bus = ReconnectingBus(config, on_event=self._on_link_event)
                 if cfg["bridge.compiled"] and not self._sim_time \
                         and not cfg["bridge.publish_raw"]:
+                    # numba's load (>5 s beside busy processes) gives way to a stop signal
+                    if not run_interruptibly(load_intake, lambda: not self.context.ok()):
+                        raise ClutchError("stopped while the compiled intake was loading")
                     st.intake = CompiledIntake(st.assembler, st.pacer,
                                                (st.gate.codec.spec.key,))
                     if not st.intake.ready:
@@ -363,7 +363,7 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
 
 def main(args=None) -> int:
     """Console entry point: ``ros2 run clutch_ros can_bridge``; bad settings: one line, exit 2."""
-    return run_node(NAME, __doc__, PARAMS, CanBridgeNode, args, preload=PRELOAD)
+    return run_node(NAME, __doc__, PARAMS, CanBridgeNode, args)
 
 
 if __name__ == "__main__":

@@ -110,22 +110,7 @@ def main(args=None) -> int:
     except ValueError as err:
         sys.stderr.write(f"{NAME}: error: {err}\n")
         return 2
-    preloads = [getattr(importlib.import_module(f"clutch_ros.nodes.{e}"), "PRELOAD", None)
-                for e, _ in groups]
-    return run_nodes(NAME, [_factory(e, a) for e, a in groups], [], executor,
-                     _all(p for p in preloads if p is not None))
-
-
-def _all(works) -> Callable[[], None] | None:
-    """One preload that runs each of ``works`` in turn (None: none)."""
-    todo = list(dict.fromkeys(works))
-    if not todo:
-        return None
-
-    def run() -> None:
-        for work in todo:
-            work()
-    return run
+    return run_nodes(NAME, [_factory(e, a) for e, a in groups], [], executor)
 
 
 if __name__ == "__main__":

@@ -42,7 +42,7 @@ from clutch_ros.nodes.realtime import (
 )
 
 __all__ = ["DEFAULT_EXECUTOR", "EVENTS_WARNING", "executor_option", "make_executor", "run_node",
-           "run_nodes", "start_realtime"]
+           "run_interruptibly", "run_nodes", "start_realtime"]
 
 
 #: Executor the nodes spin by default: :class:`~clutch_ros.nodes.lean_executor.LeanExecutor`,
@@ -125,13 +125,10 @@ class _StopSignals:
 
 
 def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[[], Node],
-             args: Sequence[str] | None = None,
-             preload: Callable[[], object] | None = None) -> int:
+             args: Sequence[str] | None = None) -> int:
     """Answer --help, or init rclpy, build the node with ``factory`` and spin until shutdown.
 
-    ``preload``: slow set-up the node needs whatever its parameters (loading compiled code),
-    run before ``rclpy.init`` so that a stop meanwhile ends the process at once
-    (:func:`run_nodes`). Bad settings (a ClutchError or rclpy ParameterException while
+    Bad settings (a ClutchError or rclpy ParameterException while
     building the node) print one line ``<name>: error: ...`` and return 2, never a traceback
     (0 when a signal stopped the start meanwhile: the error is then the stop's consequence).
     """
@@ -140,31 +137,21 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
         sys.stdout.write(format_help(name, doc, [*specs, *REALTIME_PARAMS]))
         return 0
     executor_kind, argv = executor_option(argv)
-    return run_nodes(name, [factory], argv, executor_kind, preload)
+    return run_nodes(name, [factory], argv, executor_kind)
 
 
 def run_nodes(name: str, factories: Sequence[Callable[[], Node]], argv: Sequence[str],
-              executor_kind: str = DEFAULT_EXECUTOR,
-              preload: Callable[[], object] | None = None) -> int:
+              executor_kind: str = DEFAULT_EXECUTOR) -> int:
     """Init rclpy with ``argv``, build each node and spin them all in one executor.
 
     :func:`run_node` for one node; :mod:`clutch_ros.nodes.composed` for several in one
     process. Exit codes and the handling of signals and bad settings as :func:`run_node`;
-    the nodes are closed and destroyed in reverse build order. ``preload`` runs first, in a
-    thread of its own (:func:`_preload`).
+    the nodes are closed and destroyed in reverse build order.
     """
     # rclpy's own handlers (SignalHandlerOptions.ALL, the default) turn SIGINT and SIGTERM
     # into a clean shutdown even while the executor waits in C; Python's only take note
     # (module docstring: a KeyboardInterrupt inside rclpy's C++ was an exit 1)
     stop = _StopSignals()
-    try:
-        preloaded = preload is None or _preload(preload, stop)
-    except BaseException:
-        stop.restore()
-        raise
-    if not preloaded:
-        stop.restore()
-        return 0
     rclpy.init(args=[sys.argv[0], *argv])
     nodes: list[Node] = []
     started = False
@@ -223,15 +210,17 @@ def run_nodes(name: str, factories: Sequence[Callable[[], Node]], argv: Sequence
     return 0
 
 
-def _preload(work: Callable[[], object], stop: _StopSignals) -> bool:
-    """Run ``work`` in a daemon thread; return False if a stop signal came before it ended.
+def run_interruptibly(work: Callable[[], object], stopped: Callable[[], bool],
+                      poll_s: float = 0.05) -> bool:
+    """Run ``work`` in a daemon thread; return False if ``stopped()`` came true before it ended.
 
-    Why a thread: the can_bridge's compiled intake takes ~1 s to load from numba's cache on
-    an idle machine and more than 5 s beside busy processes (measured: SIGINT during its
-    load inside the lifecycle autostart was answered after ``ros2 launch``'s 5 s). Nothing
-    can interrupt an import, so the main thread waits beside it and, on a stop, returns at
-    once; the process then exits and the unfinished daemon thread with it (nothing was
-    started: no ROS context, no bus). An exception of ``work`` is raised here.
+    For slow set-up while a node is built (the can_bridge's compiled intake: ~1 s to load
+    from numba's cache on an idle machine, more than 5 s beside busy processes, measured:
+    SIGINT during that load was answered after ``ros2 launch``'s 5 s). Nothing can interrupt
+    an import, so the calling thread checks ``stopped()`` every ``poll_s`` [s] beside it (a
+    node passes ``lambda: not self.context.ok()``: a stop signal shuts the context down) and
+    gives up at once; the unfinished daemon thread ends with the process. An exception of
+    ``work`` is raised here.
     """
     done = threading.Event()
     failure: list[BaseException] = []
@@ -245,12 +234,12 @@ def _preload(work: Callable[[], object], stop: _StopSignals) -> bool:
             done.set()
 
     threading.Thread(target=target, name="preload", daemon=True).start()
-    while not done.wait(0.05):  # (signal handlers run between the waits)
-        if stop.received:
+    while not done.wait(poll_s):  # (signal handlers run between the waits)
+        if stopped():
             return False
     if failure:
         raise failure[0]
-    return not stop.received
+    return True
 
 
 def start_realtime(node) -> Diagnostics | None:
