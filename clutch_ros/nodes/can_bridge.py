@@ -128,8 +128,8 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
                         raise self._failure or ClutchError(f"{step.__name__} failed")
             except BaseException:
                 # the runner never gets this node: stop what configure started (receive and
-                # cycle threads, bus) and leave the graph now; left to the interpreter's exit,
-                # a stop signal during configure took ~4x longer to end the process
+                # cycle threads, bus) and leave the graph, as the runner does with a node
+                # it built (a stop signal during configure ends here too)
                 self.close()
                 self.destroy_node()
                 raise

@@ -128,9 +128,9 @@ def run_node(name: str, doc: str, specs: Sequence[ParamSpec], factory: Callable[
              args: Sequence[str] | None = None) -> int:
     """Answer --help, or init rclpy, build the node with ``factory`` and spin until shutdown.
 
-    Bad settings (a ClutchError or rclpy ParameterException while
-    building the node) print one line ``<name>: error: ...`` and return 2, never a traceback
-    (0 when a signal stopped the start meanwhile: the error is then the stop's consequence).
+    Bad settings (a ClutchError or rclpy ParameterException while building the node) print
+    one line ``<name>: error: ...`` and return 2, never a traceback (0 when a signal stopped
+    the start meanwhile: the error is then the stop's consequence).
     """
     argv = list(sys.argv[1:] if args is None else args)
     if help_requested(argv):
@@ -233,7 +233,7 @@ def run_interruptibly(work: Callable[[], object], stopped: Callable[[], bool],
         finally:
             done.set()
 
-    threading.Thread(target=target, name="preload", daemon=True).start()
+    threading.Thread(target=target, name="slow_load", daemon=True).start()
     while not done.wait(poll_s):  # (signal handlers run between the waits)
         if stopped():
             return False
