@@ -123,6 +123,9 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
         self.add_post_set_parameters_callback(self._apply_params)
         if cfg["autostart"]:
             try:
+                # numba's load before the first transition: a stop while it loads then ends
+                # the start without a failed transition (rclpy logs that as an ERROR)
+                self._load_intake()
                 for step in (self.trigger_configure, self.trigger_activate):
                     if step() != OK:
                         raise self._failure or ClutchError(f"{step.__name__} failed")
@@ -133,6 +136,22 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
                 self.close()
                 self.destroy_node()
                 raise
+
+    def _load_intake(self) -> bool:
+        """Load the compiled intake if configure uses it; return whether it does.
+
+        It does with ``bridge.compiled``, on a bus (no ``input.log_file``), on the wall clock
+        and without ``bridge.publish_raw``. numba's first load takes more than 5 s beside busy
+        processes and an import cannot be interrupted, so it runs in a thread that a stop
+        signal gives up waiting for: ClutchError then. Loaded once per process.
+        """
+        cfg = self._cfg
+        if not cfg["bridge.compiled"] or cfg["bridge.publish_raw"] or cfg["input.log_file"] \
+                or self.get_parameter("use_sim_time").value:
+            return False
+        if not run_interruptibly(load_intake, lambda: not self.context.ok()):
+            raise ClutchError("stopped while the compiled intake was loading")
+        return True
 
     # -- lifecycle ------------------------------------------------------------------------
     def on_configure(self, state) -> TransitionCallbackReturn:
@@ -159,11 +178,7 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
             else:
                 config = BusConfig.from_params(cfg)
                 st.bus = ReconnectingBus(config, on_event=self._on_link_event)
-                if cfg["bridge.compiled"] and not self._sim_time \
-                        and not cfg["bridge.publish_raw"]:
-                    # numba's load (>5 s beside busy processes) gives way to a stop signal
-                    if not run_interruptibly(load_intake, lambda: not self.context.ok()):
-                        raise ClutchError("stopped while the compiled intake was loading")
+                if self._load_intake():
                     st.intake = CompiledIntake(st.assembler, st.pacer,
                                                (st.gate.codec.spec.key,))
                     if not st.intake.ready:

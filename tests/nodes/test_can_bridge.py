@@ -25,6 +25,7 @@ import statistics
 import subprocess
 import sys
 import time
+from signal import SIGINT, SIGTERM
 
 import can
 import pytest
@@ -584,3 +585,43 @@ def test_a_failed_autostart_stops_what_configure_started(ros_env):
     assert "raised ClutchError trigger_activate failed" in out.stdout, out.stdout
     threads = next(line for line in out.stdout.splitlines() if line.startswith("threads"))
     assert "can_rx" not in threads and "can_cycle" not in threads, threads
+
+
+#: the real bridge process, whose numba load (argv[1] seconds here) outlasts a stop signal
+SLOW_LOAD = """
+import sys, time
+from clutch_ros.nodes import can_bridge
+
+def slow_load():
+    print("loading", flush=True)
+    time.sleep(float(sys.argv[1]))
+
+can_bridge.load_intake = slow_load
+sys.exit(can_bridge.main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.parametrize("signum", [SIGINT, SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_stop_while_the_intake_loads_ends_the_start_without_an_error(signum, ros_env):
+    # Ctrl-C (or ros2 launch's SIGINT, then SIGTERM) while numba loads, as beside busy
+    # processes: exit 0 at once, and no ERROR line for a stop the user asked for
+    proc = subprocess.Popen([sys.executable, "-c", SLOW_LOAD, "600", "--ros-args",
+                             "-p", "can.interface:=virtual", "-p", "can.channel:=slow_load"],
+                            cwd=REPO, env=ros_env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        assert proc.stdout is not None
+        seen = []
+        for line in proc.stdout:
+            seen.append(line)
+            if line.strip() == "loading":
+                break
+        else:
+            raise AssertionError(f"the bridge ended before its load: {''.join(seen)}")
+        proc.send_signal(signum)
+        out, _ = proc.communicate(timeout=60)  # (600 s if the load were waited for)
+    finally:
+        proc.kill()
+    out = "".join(seen) + out
+    assert proc.returncode == 0, out
+    assert "ERROR" not in out and "Traceback" not in out, out
