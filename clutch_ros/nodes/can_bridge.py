@@ -123,9 +123,6 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
         self.add_post_set_parameters_callback(self._apply_params)
         if cfg["autostart"]:
             try:
-                # numba's load before the first transition: a stop while it loads then ends
-                # the start without a failed transition (rclpy logs that as an ERROR)
-                self._load_intake()
                 for step in (self.trigger_configure, self.trigger_activate):
                     if step() != OK:
                         raise self._failure or ClutchError(f"{step.__name__} failed")
@@ -140,17 +137,24 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
     def _load_intake(self) -> bool:
         """Load the compiled intake if configure uses it; return whether it does.
 
-        It does with ``bridge.compiled``, on a bus (no ``input.log_file``), on the wall clock
-        and without ``bridge.publish_raw``. numba's first load takes more than 5 s beside busy
+        It does with ``bridge.compiled``, on the wall clock and without ``bridge.publish_raw``
+        (configure asks on a bus only). numba's first load takes more than 5 s beside busy
         processes and an import cannot be interrupted, so it runs in a thread that a stop
-        signal gives up waiting for: ClutchError then. Loaded once per process.
+        signal gives up waiting for. Loaded once per process, after the bus is open: its
+        socket queues the rig's frames meanwhile, so the first samples have every frame group
+        (with the load before the bus, a CI run saw the rig's 100 ms groups stale in the
+        bridge's first samples, tests/nodes/test_can_bridge_lag.py).
+
+        A stop meanwhile raises KeyboardInterrupt, the stop the user asked for: it passes
+        rclpy's lifecycle, which turns any ``Exception`` of a transition into an ERROR log
+        and a failed transition; the autostart then closes the bridge and the runner exits 0.
         """
         cfg = self._cfg
-        if not cfg["bridge.compiled"] or cfg["bridge.publish_raw"] or cfg["input.log_file"] \
+        if not cfg["bridge.compiled"] or cfg["bridge.publish_raw"] \
                 or self.get_parameter("use_sim_time").value:
             return False
         if not run_interruptibly(load_intake, lambda: not self.context.ok()):
-            raise ClutchError("stopped while the compiled intake was loading")
+            raise KeyboardInterrupt("stopped while the compiled intake was loading")
         return True
 
     # -- lifecycle ------------------------------------------------------------------------
