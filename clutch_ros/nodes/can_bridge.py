@@ -140,18 +140,16 @@ class CanBridgeNode(ReceiveSide, LifecycleNode):
         It does with ``bridge.compiled``, on the wall clock and without ``bridge.publish_raw``
         (configure asks on a bus only). numba's first load takes more than 5 s beside busy
         processes and an import cannot be interrupted, so it runs in a thread that a stop
-        signal gives up waiting for. Loaded once per process, after the bus is open: its
-        socket queues the rig's frames meanwhile, so the first samples have every frame group
-        (with the load before the bus, a CI run saw the rig's 100 ms groups stale in the
-        bridge's first samples, tests/nodes/test_can_bridge_lag.py).
+        signal gives up waiting for. Loaded once per process, after the bus is open, so its
+        socket queues the rig's frames meanwhile and the first samples have every frame group
+        (tests/nodes/test_can_bridge_lag.py).
 
         A stop meanwhile raises KeyboardInterrupt, the stop the user asked for: it passes
         rclpy's lifecycle, which turns any ``Exception`` of a transition into an ERROR log
         and a failed transition; the autostart then closes the bridge and the runner exits 0.
         """
-        cfg = self._cfg
-        if not cfg["bridge.compiled"] or cfg["bridge.publish_raw"] \
-                or self.get_parameter("use_sim_time").value:
+        if not self._cfg["bridge.compiled"] or self._cfg["bridge.publish_raw"] \
+                or self._sim_time:  # (configure has read use_sim_time)
             return False
         if not run_interruptibly(load_intake, lambda: not self.context.ok()):
             raise KeyboardInterrupt("stopped while the compiled intake was loading")

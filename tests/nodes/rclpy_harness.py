@@ -132,6 +132,20 @@ class Harness:
                     drop(future)
 
 
+def wait_for_line(proc: subprocess.Popen, line: str) -> list[str]:
+    """Read ``proc``'s stdout until a line equal to ``line``; return the lines read.
+
+    AssertionError (with what it printed) when the process ends first.
+    """
+    seen = []
+    assert proc.stdout is not None
+    for got in proc.stdout:
+        seen.append(got.strip())
+        if got.strip() == line:
+            return seen
+    raise AssertionError(f"the process ended before {line!r}: {seen}")
+
+
 def assert_bad_settings_fail_at_start(node: str, cases: dict, env: dict) -> None:
     """Start ``clutch_ros.nodes.<node>`` once per case ``{name: (ros args, text)}``.
 

@@ -609,19 +609,14 @@ def test_a_stop_while_the_intake_loads_ends_the_start_without_an_error(signum, r
                              "-p", "can.interface:=virtual", "-p", "can.channel:=slow_load"],
                             cwd=REPO, env=ros_env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
+    from tests.nodes.rclpy_harness import wait_for_line
+
     try:
-        assert proc.stdout is not None
-        seen = []
-        for line in proc.stdout:
-            seen.append(line)
-            if line.strip() == "loading":
-                break
-        else:
-            raise AssertionError(f"the bridge ended before its load: {''.join(seen)}")
+        seen = wait_for_line(proc, "loading")
         proc.send_signal(signum)
         out, _ = proc.communicate(timeout=60)  # (600 s if the load were waited for)
     finally:
         proc.kill()
-    out = "".join(seen) + out
+    out = "\n".join(seen) + "\n" + out
     assert proc.returncode == 0, out
     assert "ERROR" not in out and "Traceback" not in out, out

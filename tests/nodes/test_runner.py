@@ -16,6 +16,7 @@ import pytest
 
 from clutch_ros.nodes.runner import run_interruptibly
 from tests.conftest import REPO
+from tests.nodes.rclpy_harness import wait_for_line
 
 #: a node process whose build loads for argv[1] seconds; each step prints a line
 PROBE = """
@@ -46,22 +47,12 @@ def _start(load_s: float, env: dict) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-def _wait_for(proc: subprocess.Popen, line: str) -> list[str]:
-    seen = []
-    assert proc.stdout is not None
-    for got in proc.stdout:
-        seen.append(got.strip())
-        if got.strip() == line:
-            return seen
-    raise AssertionError(f"the process ended before {line!r}: {seen}")
-
-
 @pytest.mark.ros
 @SIGNALS
 def test_a_stop_during_a_slow_load_exits_0_without_waiting_for_it(signum, ros_env):
     proc = _start(600.0, ros_env)  # a load that would outlast the test's timeout
     try:
-        _wait_for(proc, "loading")
+        wait_for_line(proc, "loading")
         proc.send_signal(signum)
         out, _ = proc.communicate(timeout=60)  # (600 s if the load were waited for)
     finally:
@@ -75,7 +66,7 @@ def test_a_stop_during_a_slow_load_exits_0_without_waiting_for_it(signum, ros_en
 def test_a_load_that_ends_lets_the_node_run_until_stopped(signum, ros_env):
     proc = _start(0.05, ros_env)
     try:
-        _wait_for(proc, "loaded")
+        wait_for_line(proc, "loaded")
         proc.send_signal(signum)
         out, _ = proc.communicate(timeout=60)
     finally:
